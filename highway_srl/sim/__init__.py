@@ -1,0 +1,7 @@
+"""Batched highway world (no knowledge of the rules or the agents)."""
+
+from highway_srl.sim.road import Road, make_road
+from highway_srl.sim.snapshot import LANE_END, NO_VEHICLE, Snapshot
+from highway_srl.sim.world import StepEvents, World, check_device
+
+__all__ = ["Road", "make_road", "Snapshot", "LANE_END", "NO_VEHICLE", "World", "StepEvents", "check_device"]

@@ -1,0 +1,47 @@
+"""Counter-based random numbers: a draw is a pure function of (seed, episode, step, stream, index).
+
+Why not torch.Generator: with one generator per batch, what env b sees depends on how many other envs
+share the batch. Hashing counters makes env b with seed s produce the same episode alone or in a batch
+of 65,536, on CPU or CUDA, and lets an env be reset without touching the others' streams.
+The hash is SplitMix64's finaliser on int64 tensors (wrap-around multiplication, logical shifts by mask).
+"""
+
+from __future__ import annotations
+
+import torch
+
+_M1 = -4658895280553007687  # 0xBF58476D1CE4E5B9 as int64
+_M2 = -7723592293110705685  # 0x94D049BB133111EB
+_GOLDEN = -7046029254386353131  # 0x9E3779B97F4A7C15
+
+
+def _shr(z: torch.Tensor, k: int) -> torch.Tensor:
+    return (z >> k) & ((1 << (64 - k)) - 1)
+
+
+def mix64(z: torch.Tensor) -> torch.Tensor:
+    z = z + _GOLDEN
+    z = (z ^ _shr(z, 30)) * _M1
+    z = (z ^ _shr(z, 27)) * _M2
+    return z ^ _shr(z, 31)
+
+
+def key(seed: torch.Tensor, episode: torch.Tensor, step: torch.Tensor | int, stream: int) -> torch.Tensor:
+    """(B,) int64 key for one stream of one step of one episode of each env."""
+    k = mix64(seed * 1_000_003 + episode)
+    k = mix64(k + stream * 7919)
+    return mix64(k + step)
+
+
+def uniform(k: torch.Tensor, n: int | None = None) -> torch.Tensor:
+    """Uniform [0, 1) float32 draws: (B,) if n is None, else (B, n), one per index 0..n-1."""
+    z = k if n is None else k[:, None] * 31 + torch.arange(n, device=k.device, dtype=torch.int64)
+    z = mix64(z)
+    # top 24 bits -> exactly representable float32 in [0, 1)
+    return _shr(z, 40).to(torch.float32) * (1.0 / (1 << 24))
+
+
+def randint(k: torch.Tensor, high: torch.Tensor | int, n: int | None = None) -> torch.Tensor:
+    """Uniform integers in [0, high)."""
+    # u < 1 - 2**-24, so u * high < high for any high below 2**24
+    return (uniform(k, n) * high).long()

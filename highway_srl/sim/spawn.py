@@ -1,0 +1,168 @@
+"""Initial placement of the ego and the surrounding vehicles (Tables 3 and 4).
+
+Vehicles form queues in each lane around the ego, ahead and behind alternately, with bumper-to-bumper
+headways drawn from the level's range: a closed-loop flow centred on the ego (§4.1). The layout of who
+goes where is static per (scenario, level) and computed once on the host; only the draws are batched.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from highway_srl.constants import (
+    ADVERSARIAL_TRIGGER_OFFSETS_M,
+    STYLES,
+    SV_INIT_SPEED_MPS,
+    V_MAX_MPS,
+    VEHICLE_LENGTH_M,
+    TrafficLevel,
+)
+from highway_srl.sim import rng
+from highway_srl.sim.road import Road
+from highway_srl.sim.state import EXIT_INTENT, MERGE_INTENT, NO_INTENT, WorldState
+
+EXIT_INTENT_PROB = 0.25  # share of mainline vehicles that take the off-ramp in the exit scenario
+S_EGO_LANE, S_LANE_PHASE, S_SPEED, S_HEADWAY, S_STYLE, S_INTENT, S_OFFSET, S_PHASE = range(8)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Static slot of each surrounding vehicle: which queue (lane, side) and the matrix that sums spacings."""
+
+    lane: torch.Tensor  # (M,) long; M = number of SVs; -1 = the ego's lane (two-lane / multi-lane)
+    side: torch.Tensor  # (M,) +1 ahead, -1 behind
+    first: torch.Tensor  # (M,) bool, first of its queue
+    cumulative: torch.Tensor  # (M, M) float, cumulative[j, j'] = 1 if j' is in j's queue at or before j
+    ramp: torch.Tensor  # (M,) bool, starts on the ramp lane
+    window_m: float  # half-length of the region kept populated around the ego
+    margin_m: float  # hysteresis before a vehicle is recycled
+
+
+def make_layout(road: Road, level: TrafficLevel, num_vehicles: int) -> Layout:
+    m = num_vehicles
+    lanes, ramp = [], []
+    n_ramp = max(1, m // 8) if road.scenario == "merge" else 0
+    for j in range(m):
+        if j < n_ramp:
+            lanes.append(2)
+            ramp.append(True)
+        else:
+            lanes.append((j - n_ramp) % road.mainline_lanes)
+            ramp.append(False)
+    # queue position: alternate ahead / behind within each lane; ramp vehicles mostly behind the ego's start
+    side, rank, count = [], [], {}
+    for j, lane in enumerate(lanes):
+        c = count.get(lane, 0)
+        count[lane] = c + 1
+        s = (1 if c % 2 == 0 else -1) if not ramp[j] else (1 if c == 0 else -1)
+        side.append(s)
+        rank.append(sum(1 for i in range(j) if lanes[i] == lane and side[i] == s))
+    cum = torch.zeros(m, m)
+    for j in range(m):
+        for i in range(m):
+            if lanes[i] == lanes[j] and side[i] == side[j] and rank[i] <= rank[j]:
+                cum[j, i] = 1.0
+    per_lane = math.ceil((m - n_ramp) / road.mainline_lanes)
+    mean_spacing = VEHICLE_LENGTH_M + 0.5 * sum(level.headway_m)
+    window = max(math.ceil(per_lane / 2) * mean_spacing + 0.5 * mean_spacing, 60.0)
+    return Layout(
+        lane=torch.tensor(lanes),
+        side=torch.tensor(side, dtype=torch.float32),
+        first=torch.tensor([r == 0 for r in rank]),
+        cumulative=cum,
+        ramp=torch.tensor(ramp),
+        window_m=window,
+        margin_m=VEHICLE_LENGTH_M + level.headway_m[1],
+    )
+
+
+def spawn(
+    road: Road,
+    level: TrafficLevel,
+    layout: Layout,
+    seed: torch.Tensor,
+    episode: torch.Tensor,
+    style: int | None,
+) -> WorldState:
+    """Fresh episodes for envs with these seeds and episode numbers (each (B,) long)."""
+    dev = seed.device
+    b, m = seed.shape[0], layout.lane.shape[0]
+    n = m + 1
+    lay_lane, side = layout.lane.to(dev), layout.side.to(dev)
+    key = lambda stream: rng.key(seed, episode, 0, stream)  # noqa: E731
+
+    starts = torch.tensor(road.ego_start_lanes, device=dev)
+    ego_lane = starts[rng.randint(key(S_EGO_LANE), len(road.ego_start_lanes))]
+    ego_x = torch.full((b,), road.ego_start_x_m, device=dev)
+    lo, hi = SV_INIT_SPEED_MPS
+    speed = lo + (hi - lo) * rng.uniform(key(S_SPEED), n)  # (B, N), column 0 for the ego
+
+    h_lo, h_hi = level.headway_m
+    spacing = VEHICLE_LENGTH_M + h_lo + (h_hi - h_lo) * rng.uniform(key(S_HEADWAY), m)  # (B, M)
+    offset = spacing @ layout.cumulative.to(dev).T  # distance from the ego along the queue
+    # lanes other than the ego's get a random phase so their queues do not line up with the ego's
+    phase = rng.uniform(key(S_LANE_PHASE), road.num_lanes)  # (B, lanes)
+    sv_lane = lay_lane.expand(b, m)
+    in_ego_lane = sv_lane == ego_lane[:, None]
+    u = torch.gather(phase, 1, sv_lane)
+    first_spacing = _first_spacing(spacing, layout, dev)
+    shift = torch.where(side > 0, (1 - u) * first_spacing, u * first_spacing)
+    shift = torch.where(in_ego_lane | layout.ramp.to(dev), torch.zeros_like(shift), shift)
+    sv_x = ego_x[:, None] + side * (offset - shift)
+
+    x = torch.cat([ego_x[:, None], sv_x], 1)
+    lane = torch.cat([ego_lane[:, None], sv_lane], 1)
+    y = lane.to(torch.float32) * road.lane_width_m
+
+    if style is None:
+        sv_style = rng.randint(key(S_STYLE), len(STYLES), m)
+    else:
+        sv_style = torch.full((b, m), style, dtype=torch.long, device=dev)
+    sty = torch.cat([torch.zeros(b, 1, dtype=torch.long, device=dev), sv_style], 1)
+    table = lambda attr: torch.tensor([getattr(s, attr) for s in STYLES], device=dev)[sty]  # noqa: E731
+    v0 = (1.0 + table("speed_violation").float()) * V_MAX_MPS
+    v0[:, 0] = V_MAX_MPS
+
+    intent = torch.full((b, n), NO_INTENT, dtype=torch.long, device=dev)
+    if road.scenario == "merge":
+        intent[:, 1:] = torch.where(layout.ramp.to(dev), MERGE_INTENT, NO_INTENT).expand(b, m)
+    elif road.scenario == "exit":
+        exits = rng.uniform(key(S_INTENT), m) < EXIT_INTENT_PROB
+        intent[:, 1:] = torch.where(exits, EXIT_INTENT, NO_INTENT)
+    offsets = torch.tensor(ADVERSARIAL_TRIGGER_OFFSETS_M, device=dev)
+    zeros_b = torch.zeros(b, n, dtype=torch.bool, device=dev)
+    return WorldState(
+        x=x,
+        y=y,
+        v=speed,
+        heading=torch.zeros(b, n, device=dev),
+        lane=lane,
+        target_lane=lane.clone(),
+        style=sty,
+        v0=v0,
+        s0=table("desired_headway_m").float(),
+        lane_change=table("lane_change").bool(),
+        adversarial_prob=table("adversarial_prob").float(),
+        intent=intent,
+        trigger_offset=offsets[rng.randint(key(S_OFFSET), len(offsets), n)],
+        trigger_used=zeros_b.clone(),
+        forced=zeros_b.clone(),
+        phase=rng.randint(key(S_PHASE), 8, n),
+        seed=seed.clone(),
+        episode=episode.clone(),
+        t=torch.zeros(b, dtype=torch.long, device=dev),
+        merged=torch.zeros(b, dtype=torch.bool, device=dev),
+        exit1=ego_lane == 1,
+        exit2=ego_lane == 2,
+    )
+
+
+def _first_spacing(spacing: torch.Tensor, layout: Layout, dev) -> torch.Tensor:
+    """For each SV, the spacing of the first vehicle of its queue (B, M)."""
+    first = layout.first.to(dev)
+    # the first of a queue is the j' with cumulative[j, j'] = 1 and first[j'] = True: exactly one
+    sel = layout.cumulative.to(dev) * first.float()[None, :]
+    return spacing @ sel.T

@@ -1,0 +1,202 @@
+"""The batched highway world: reset, step and the ego's neighbour query, on CPU or CUDA.
+
+A step is a fixed sequence of tensor operations over (B, N); there are no per-vehicle objects and no
+Python loops over envs or vehicles (only over the at most three lanes).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from highway_srl.constants import (
+    D_MAX_M,
+    DT_S,
+    EGO_ACCEL_MAX_MPS2,
+    EGO_BRAKE_MAX_MPS2,
+    EPISODE_STEPS,
+    SCENARIOS,
+    STYLE_NAMES,
+    TRAFFIC_LEVELS,
+    V_MAX_MPS,
+    VEHICLE_LENGTH_M,
+)
+from highway_srl.sim import dynamics
+from highway_srl.sim.road import Road, make_road
+from highway_srl.sim.snapshot import LANE_END, NO_VEHICLE, Snapshot
+from highway_srl.sim.spawn import Layout, make_layout, spawn
+from highway_srl.sim.state import WorldState
+
+MAX_VEHICLES = 64
+
+
+@dataclass
+class StepEvents:
+    """What happened in one step, per env (B,) bool unless noted."""
+
+    collision: torch.Tensor  # the ego hit a vehicle, a lane end or left the road
+    success: torch.Tensor  # exit: reached the off-ramp's end (terminal); merge: reached the stability zone
+    failure: torch.Tensor  # exit: missed the off-ramp (terminal)
+    terminated: torch.Tensor
+    truncated: torch.Tensor  # the 320-step limit
+    sv_collisions: torch.Tensor  # (B,) long, SV-SV contacts this step (the traffic model should avoid them)
+
+
+def check_device(device: str | torch.device) -> torch.device:
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError):
+        raise ValueError(f"unknown device {device!r}; use cpu, cuda or cuda:N") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {device!r} is not available here (no CUDA); use cpu")
+    if dev.type == "cuda" and dev.index is not None and dev.index >= torch.cuda.device_count():
+        raise ValueError(f"device {device!r} does not exist; {torch.cuda.device_count()} CUDA device(s) found")
+    if dev.type not in ("cpu", "cuda"):
+        raise ValueError(f"unsupported device {device!r}; use cpu, cuda or cuda:N")
+    return dev
+
+
+class World:
+    """B independent episodes of one scenario and traffic level.
+
+    seed: an int (env b gets seed + b) or a sequence of B ints. Env b's episodes depend only on its own
+    seed, not on the batch size or the device's other envs.
+    """
+
+    def __init__(
+        self,
+        scenario: str = "two-lane",
+        traffic: str = "C",
+        adversarial: bool = False,
+        num_envs: int = 1,
+        device: str | torch.device = "cpu",
+        seed: int | list[int] = 0,
+        style: str | None = None,
+        num_vehicles: int | None = None,
+        max_steps: int = EPISODE_STEPS,
+    ):
+        if scenario not in SCENARIOS:
+            raise ValueError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
+        if traffic not in TRAFFIC_LEVELS:
+            raise ValueError(f"unknown traffic level {traffic!r}; choose one of {', '.join(TRAFFIC_LEVELS)}")
+        if not isinstance(num_envs, int) or num_envs < 1:
+            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        if style is not None and style not in STYLE_NAMES:
+            raise ValueError(f"unknown driving style {style!r}; choose one of {', '.join(STYLE_NAMES)} or none")
+        level = TRAFFIC_LEVELS[traffic]
+        m = level.num_vehicles if num_vehicles is None else num_vehicles
+        if not isinstance(m, int) or m < 1 or m + 1 > MAX_VEHICLES:
+            raise ValueError(f"num_vehicles must be between 1 and {MAX_VEHICLES - 1}, got {m!r}")
+        if not isinstance(max_steps, int) or max_steps < 1:
+            raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+        self.device = check_device(device)
+        self.scenario, self.traffic, self.adversarial = scenario, traffic, bool(adversarial)
+        self.road: Road = make_road(scenario)
+        self.level = level
+        self.layout: Layout = make_layout(self.road, level, m)
+        self.num_envs, self.num_vehicles = num_envs, m + 1
+        self.max_steps = max_steps
+        self.style = None if style is None else STYLE_NAMES.index(style)
+        if isinstance(seed, int):
+            seeds = torch.arange(num_envs, dtype=torch.long) + seed
+        else:
+            seeds = torch.as_tensor(list(seed), dtype=torch.long)
+            if seeds.shape != (num_envs,):
+                raise ValueError(f"need {num_envs} seeds, got {seeds.shape[0]}")
+        self._lane_tables = dynamics.LaneTables.of(self.road, self.device)
+        self.state: WorldState = spawn(
+            self.road, level, self.layout, seeds.to(self.device), torch.zeros_like(seeds).to(self.device), self.style
+        )
+
+    # ------------------------------------------------------------------ episodes
+    def reset(self, mask: torch.Tensor | None = None) -> None:
+        """Start new episodes in the envs where mask (B,) is True (all envs if None)."""
+        s = self.state
+        idx = torch.arange(self.num_envs, device=self.device) if mask is None else mask.nonzero().squeeze(1)
+        if idx.numel() == 0:
+            return
+        fresh = spawn(self.road, self.level, self.layout, s.seed[idx], s.episode[idx] + 1, self.style)
+        s.index_put(idx, fresh)
+
+    def step(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
+        """Advance every env by δt with the ego tracking (target lane (B,) long, target speed (B,) m/s)."""
+        s = self.state
+        target_lane = torch.as_tensor(target_lane, device=self.device).long().reshape(self.num_envs)
+        target_speed = torch.as_tensor(target_speed, device=self.device, dtype=torch.float32).reshape(self.num_envs)
+        sv_collisions = dynamics.advance(s, self.road, self._lane_tables, self.layout, target_lane, target_speed,
+                                         self.adversarial)
+        collision = dynamics.ego_collision(s, self.road, self._lane_tables)
+        success, failure = dynamics.stage_events(s, self.road)
+        dynamics.recycle(s, self.road, self.layout, self.level)
+        s.t += 1
+        terminated = collision | failure | (success & (self.road.scenario == "exit"))
+        truncated = (s.t >= self.max_steps) & ~terminated
+        return StepEvents(collision, success, failure, terminated, truncated, sv_collisions)
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def ego_lane(self) -> torch.Tensor:
+        return self.state.lane[:, 0]
+
+    def neighbours(self, current_lane: torch.Tensor, adjacent_lane: torch.Tensor, d_max: float = D_MAX_M) -> Snapshot:
+        """SV1..SV4 of the ego: nearest front/rear vehicle in current_lane and adjacent_lane (B,) within d_max.
+
+        Lane membership is by the nearest lane centre; 'front' means the SV's centre is ahead of the ego's.
+        The end of a dropped lane ahead appears as a standing vehicle whose rear bumper is at the lane end.
+        """
+        s = self.state
+        x, lane = s.x[:, 1:], s.lane[:, 1:]
+        ego_x = s.x[:, 0]
+        dx = x - ego_x[:, None]
+        near = dx.abs() <= d_max
+        inf = torch.full_like(dx, float("inf"))
+        slots = []
+        for lane_q in (current_lane, adjacent_lane):
+            in_lane = (lane == lane_q[:, None]) & near
+            front_d, front_i = torch.where(in_lane & (dx > 0), dx, inf).min(1)
+            rear_d, rear_i = torch.where(in_lane & (dx <= 0), -dx, inf).min(1)
+            slots.append((front_d, front_i, lane_q))
+            slots.append((rear_d, rear_i, lane_q))
+        order = (0, 2, 1, 3)  # SV1 front-current, SV2 front-adjacent, SV3 rear-current, SV4 rear-adjacent
+        dist = torch.stack([slots[k][0] for k in order], 1)
+        idx = torch.stack([slots[k][1] for k in order], 1) + 1
+        valid = torch.isfinite(dist)
+        gx = lambda t: torch.gather(t, 1, idx)  # noqa: E731
+        sv_x, sv_y, sv_v, sv_h = gx(s.x), gx(s.y), gx(s.v), gx(s.heading)
+        sv_index = torch.where(valid, idx, NO_VEHICLE)
+        # lane ends ahead (merge on-ramp): a standing obstacle if nearer than the front vehicle
+        end = self._lane_tables.drop_end_m
+        for k, lane_q in ((0, current_lane), (1, adjacent_lane)):
+            lane_end = end[lane_q.clamp(min=0)]
+            wall_x = lane_end + 0.5 * VEHICLE_LENGTH_M
+            use = (lane_q >= 0) & (wall_x - ego_x <= d_max) & (~valid[:, k] | (wall_x < sv_x[:, k]))
+            use &= torch.isfinite(lane_end) & (wall_x > ego_x)
+            sv_x[:, k] = torch.where(use, wall_x, sv_x[:, k])
+            sv_y[:, k] = torch.where(use, lane_q.float() * self.road.lane_width_m, sv_y[:, k])
+            sv_v[:, k] = torch.where(use, 0.0, sv_v[:, k])
+            sv_h[:, k] = torch.where(use, 0.0, sv_h[:, k])
+            sv_index[:, k] = torch.where(use, LANE_END, sv_index[:, k])
+            valid[:, k] |= use
+        zero = torch.zeros_like(sv_x)
+        return Snapshot(
+            ego_x=ego_x,
+            ego_y=s.y[:, 0],
+            ego_vx=s.v[:, 0] * torch.cos(s.heading[:, 0]),
+            ego_vy=s.v[:, 0] * torch.sin(s.heading[:, 0]),
+            ego_heading=s.heading[:, 0],
+            ego_lane=s.lane[:, 0],
+            sv_x=torch.where(valid, sv_x, zero),
+            sv_y=torch.where(valid, sv_y, zero),
+            sv_vx=torch.where(valid, sv_v * torch.cos(sv_h), zero),
+            sv_vy=torch.where(valid, sv_v * torch.sin(sv_h), zero),
+            sv_heading=torch.where(valid, sv_h, zero),
+            sv_valid=valid,
+            sv_index=sv_index,
+            current_lane=current_lane,
+            adjacent_lane=adjacent_lane,
+        )
+
+
+# Speed limits the ego controller uses; exported for the rules' control mapping.
+EGO_LIMITS = {"accel": EGO_ACCEL_MAX_MPS2, "brake": EGO_BRAKE_MAX_MPS2, "v_max": V_MAX_MPS, "dt": DT_S}
