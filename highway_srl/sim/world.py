@@ -139,6 +139,15 @@ class World:
     def ego_lane(self) -> torch.Tensor:
         return self.state.lane[:, 0]
 
+    @property
+    def ego_speed(self) -> torch.Tensor:
+        return self.state.v[:, 0]
+
+    def stage_flags(self) -> dict[str, torch.Tensor]:
+        """Latched task stages of the current episodes (B,) bool: merged, exit1, exit2."""
+        s = self.state
+        return {"merged": s.merged, "exit1": s.exit1, "exit2": s.exit2}
+
     def neighbours(self, current_lane: torch.Tensor, adjacent_lane: torch.Tensor, d_max: float = D_MAX_M) -> Snapshot:
         """SV1..SV4 of the ego: nearest front/rear vehicle in current_lane and adjacent_lane (B,) within d_max.
 
