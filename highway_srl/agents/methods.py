@@ -1,0 +1,117 @@
+"""Training methods: what differs between MoE-RM-SRL, its ablations and the baselines.
+
+A method decides the action from the rule layer's view of the step, names the learner member that owns
+the transition, computes the training reward and updates its members. The trainer does everything else,
+so each method is the few lines that make it different.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from highway_srl.agents.dqn import DQNLearner
+from highway_srl.agents.gating import expert_action_mask
+from highway_srl.agents.moe import MoEPolicy
+from highway_srl.agents.replay import ExpertReplay
+from highway_srl.rules import choose_second, scenario_reward
+
+
+@dataclass
+class Decision:
+    action: torch.Tensor  # (B,) long, index into the rule layer's A* = ACTIONS
+    member: torch.Tensor  # (B,) long, learner member that owns the transition; -1: none
+    use_second: torch.Tensor | None  # (B,) bool, multi-lane: the middle-right model decided
+
+
+class Method:
+    """Base class with the MoE-RM-SRL defaults for reward, storage and updates."""
+
+    name = "base"
+    out_dim = 4
+    uses_cost = False
+    layer_options: dict = {}
+
+    def __init__(self, scenario: str, seeds: int, options: dict):
+        self.scenario, self.seeds, self.options = scenario, seeds, dict(options)
+
+    num_members: int = 1
+
+    def action_mask(self) -> torch.Tensor:
+        raise NotImplementedError
+
+    def decide(self, learner, step, explore, generator) -> Decision:
+        raise NotImplementedError
+
+    def reward(self, scenario, nxt, events, flags) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The paper's RM reward (§3.2, §4.3): r_RM, or its merge/exit mix; -320 on collision."""
+        r = scenario_reward(scenario, nxt.r_rm, events.collision, r_merge=flags["merged"],
+                            r_exit1=flags["exit1"], r_exit2=flags["exit2"])
+        return r, None
+
+    def store(self, replay: ExpertReplay, d: Decision, obs, reward, next_obs, done, cost, share: bool = False):
+        replay.add(d.member, obs, d.action, reward, next_obs, done, cost)
+
+    def members_to_update(self, acted: torch.Tensor, sizes: torch.Tensor, batch_size: int) -> torch.Tensor:
+        """Algorithm 1 trains the member that acted; only once its buffer holds a full batch."""
+        members = torch.unique(acted[acted >= 0])
+        return members[sizes[members] >= batch_size]
+
+    def update(self, learner: DQNLearner, members: torch.Tensor, batch: dict) -> None:
+        learner.update(members, batch)
+
+    def after_step(self, trainer, events, cost, done) -> None:
+        pass
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        return {}
+
+    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
+        pass
+
+
+class MoERMSRL(Method):
+    """MoE-RM-SRL (§3.4): 11 experts per seed over the subsets of A*, PoG when exploiting, ExG when exploring."""
+
+    name = "moe-rm-srl"
+
+    def __init__(self, scenario, seeds, options):
+        super().__init__(scenario, seeds, options)
+        self.policy = MoEPolicy(seeds)
+        self.num_members = self.policy.members_per_seed * seeds
+
+    def action_mask(self) -> torch.Tensor:
+        return self.policy.action_mask()
+
+    def decide(self, learner, step, explore, generator) -> Decision:
+        use_second = None
+        if bool(step.two_models.any()):
+            v1 = self.policy.value(learner, step.primary.obs, step.primary.mask)
+            v2 = self.policy.value(learner, step.second.obs, step.second.mask)
+            use_second = choose_second(v1, v2, step.two_models)
+        model = step.select(use_second)
+        action, member = self.policy.act(learner, model.obs, model.mask, explore, generator)
+        return Decision(action, member, use_second)
+
+    def store(self, replay, d, obs, reward, next_obs, done, cost, share=False):
+        if not share:
+            return super().store(replay, d, obs, reward, next_obs, done, cost, share)
+        # off-policy option: every expert (of the env's own seed) whose action set holds the executed action
+        per = self.policy.members_per_seed
+        holds = expert_action_mask(obs.device)[:, d.action].T  # (B, 11)
+        b = obs.shape[0]
+        seed_of_env = torch.arange(b, device=obs.device) // (b // self.seeds)
+        mask = torch.zeros(b, self.num_members, dtype=torch.bool, device=obs.device)
+        cols = seed_of_env[:, None] * per + torch.arange(per, device=obs.device)
+        mask.scatter_(1, cols, holds)
+        replay.add_shared(mask, obs, d.action, reward, next_obs, done, cost)
+
+
+METHODS: dict[str, type[Method]] = {"moe-rm-srl": MoERMSRL}
+
+
+def make_method(name: str, scenario: str, seeds: int, options: dict | None = None) -> Method:
+    if name not in METHODS:
+        raise ValueError(f"unknown method {name!r}; choose one of {', '.join(METHODS)}")
+    return METHODS[name](scenario, seeds, options or {})

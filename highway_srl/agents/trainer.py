@@ -1,0 +1,206 @@
+"""The training loop (Algorithm 1), batched over envs and seeds on one device.
+
+One vector step: observe (rules) -> act (method) -> control mapping -> world step -> observe the next
+state -> reward -> store in the acting member's buffer -> episode bookkeeping and resets -> DQN updates
+of the members that acted. Everything stays on the trainer's device; the host reads back only the few
+numbers needed for finished episodes and for choosing which members to update.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import torch
+
+from highway_srl.agents.dqn import DQNConfig, DQNLearner
+from highway_srl.agents.methods import Method, make_method
+from highway_srl.agents.replay import ExpertReplay
+from highway_srl.constants import OBS_DIM
+from highway_srl.rules import SafetyLayer, deployment_step_reward
+from highway_srl.sim import World
+from highway_srl.sim.state import WorldState
+
+
+@dataclass
+class TrainConfig:
+    method: str = "moe-rm-srl"
+    scenario: str = "two-lane"
+    traffic: str = "C"
+    adversarial: bool = False
+    steps: int = 500_000  # environment steps per seed (Table 2's T_total)
+    envs: int = 16  # environments per seed, stepped together
+    seeds: tuple[int, ...] = (0,)
+    device: str = "cpu"
+    updates_per_step: int = 4  # gradient steps per acting member per vector step (replay ratio = this / envs)
+    share_transitions: bool = False  # store each transition in every expert whose set holds the action
+    dqn: DQNConfig = field(default_factory=DQNConfig)
+    options: dict = field(default_factory=dict)  # method-specific switches (ablations)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["seeds"] = list(self.seeds)
+        return d
+
+    @staticmethod
+    def from_dict(d: dict) -> "TrainConfig":
+        known = set(TrainConfig.__dataclass_fields__)
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"unknown config keys {unknown}; allowed: {sorted(known)}")
+        d = dict(d)
+        dqn = d.pop("dqn", {}) or {}
+        unknown = sorted(set(dqn) - set(DQNConfig.__dataclass_fields__))
+        if unknown:
+            raise ValueError(f"unknown dqn config keys {unknown}; allowed: {sorted(DQNConfig.__dataclass_fields__)}")
+        if "adam_betas" in dqn:
+            dqn["adam_betas"] = tuple(dqn["adam_betas"])
+        d["seeds"] = tuple(d.get("seeds", (0,)))
+        return TrainConfig(dqn=DQNConfig(**dqn), **d)
+
+
+@dataclass
+class Episode:
+    seed: int
+    step: int  # environment steps of this seed when the episode ended
+    ret: float  # training return (the reward the learner saw)
+    length: int
+    collision: bool
+    avg_speed: float
+    success: bool
+    deploy_reward: float  # the paper's R_r of the episode
+
+
+class Trainer:
+    def __init__(self, config: TrainConfig):
+        cfg = config
+        if cfg.steps < 1 or cfg.envs < 1 or cfg.updates_per_step < 0:
+            raise ValueError("steps and envs must be positive and updates_per_step non-negative")
+        self.config = cfg
+        self.num_seeds = len(cfg.seeds)
+        self.batch = cfg.envs * self.num_seeds
+        env_seeds = [s * 1_000_003 + e for s in cfg.seeds for e in range(cfg.envs)]
+        self.world = World(cfg.scenario, cfg.traffic, cfg.adversarial, self.batch, cfg.device, env_seeds)
+        self.device = self.world.device
+        self.method: Method = make_method(cfg.method, cfg.scenario, self.num_seeds, cfg.options)
+        self.layer = SafetyLayer(self.world.road, **self.method.layer_options)
+        self.learner = DQNLearner(
+            self.method.num_members, self.method.action_mask(), cfg.dqn, self.device, OBS_DIM, self.method.out_dim,
+            generator=torch.Generator(device="cpu").manual_seed(cfg.seeds[0]),
+        )
+        self.replay = ExpertReplay(self.method.num_members, OBS_DIM, cfg.dqn.buffer_capacity, self.device,
+                                   with_cost=self.method.uses_cost)
+        self.gen = torch.Generator(device=self.device).manual_seed(cfg.seeds[0] + 12345)
+        self.seed_of_env = torch.arange(self.batch, device=self.device) // cfg.envs
+        self.vector_steps = 0
+        self._zero_episode_stats()
+        self.current = self.layer.observe(self.world)
+
+    # ------------------------------------------------------------------ bookkeeping
+    def _zero_episode_stats(self) -> None:
+        z = lambda dtype=torch.float32: torch.zeros(self.batch, dtype=dtype, device=self.device)  # noqa: E731
+        self.ep_return, self.ep_deploy, self.ep_speed = z(), z(), z()
+        self.ep_len = z(torch.long)
+        self.ep_collision, self.ep_success = z(torch.bool), z(torch.bool)
+
+    @property
+    def env_steps(self) -> int:
+        """Environment steps per seed so far."""
+        return self.vector_steps * self.config.envs
+
+    # ------------------------------------------------------------------ one vector step
+    def step(self) -> list[Episode]:
+        cfg, world, layer = self.config, self.world, self.layer
+        cur = self.current
+        eps = cfg.dqn.epsilon(self.env_steps)
+        explore = torch.rand(self.batch, generator=self.gen, device=self.device) < eps
+        decision = self.method.decide(self.learner, cur, explore, self.gen)
+        lane, speed = layer.act(decision.action, decision.use_second)
+        events = world.step(lane, speed)
+        nxt = layer.observe(world)
+        flags = world.stage_flags()
+        model = cur.select(decision.use_second)
+        reward, cost = self.method.reward(cfg.scenario, nxt.primary, events, flags)
+        self.method.store(self.replay, decision, model.obs, reward, nxt.primary.obs, events.terminated, cost,
+                          share=cfg.share_transitions)
+
+        # episode bookkeeping (the deployment reward R_r is tracked for every method alike)
+        deploy = deployment_step_reward(cfg.scenario, nxt.primary.speed_ratio, r_star=nxt.primary.r_star,
+                                        r_merge=flags["merged"], r_exit1=flags["exit1"], r_exit2=flags["exit2"])
+        self.ep_return += reward
+        self.ep_deploy += deploy
+        self.ep_speed += world.ego_speed
+        self.ep_len += 1
+        self.ep_collision |= events.collision
+        self.ep_success |= events.success
+        done = events.terminated | events.truncated
+        self.vector_steps += 1
+        finished: list[Episode] = []
+        if bool(done.any()):
+            finished = self._finish(done, flags)
+            world.reset(done)
+            layer.reset(done)
+            nxt = layer.observe(world)
+        self.current = nxt
+
+        if self.env_steps >= cfg.dqn.learning_starts and cfg.updates_per_step > 0:
+            self._update(decision.member)
+        self.method.after_step(self, events, cost, done)
+        return finished
+
+    def _finish(self, done: torch.Tensor, flags: dict) -> list[Episode]:
+        idx = done.nonzero().squeeze(1)
+        success = self.ep_success | (flags["merged"] if self.config.scenario == "merge" else self.ep_success)
+        collided = self.ep_collision
+        deploy = self.ep_deploy - float(self.world.max_steps) * collided.float()
+        rows = torch.stack([
+            self.seed_of_env.float(), self.ep_return, self.ep_len.float(), collided.float(),
+            self.ep_speed / self.ep_len.clamp(min=1).float(), (success & ~collided).float(), deploy,
+        ], 1)[idx].cpu().tolist()
+        out = [Episode(self.config.seeds[int(r[0])], self.env_steps, r[1], int(r[2]), bool(r[3]), r[4], bool(r[5]), r[6])
+               for r in rows]
+        for t in (self.ep_return, self.ep_deploy, self.ep_speed):
+            t[idx] = 0.0
+        self.ep_len[idx] = 0
+        self.ep_collision[idx] = False
+        self.ep_success[idx] = False
+        return out
+
+    def _update(self, acted: torch.Tensor) -> None:
+        cfg = self.config
+        members = self.method.members_to_update(acted, self.replay.size, cfg.dqn.batch_size)
+        if members.numel() == 0:
+            return
+        for _ in range(cfg.updates_per_step):
+            batch = self.replay.sample(members, cfg.dqn.batch_size, self.gen)
+            self.method.update(self.learner, members, batch)
+
+    # ------------------------------------------------------------------ checkpoints
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        """Everything a resumed run needs to continue exactly: weights, targets, Adam moments, counters,
+        replay buffers, the worlds' state, the rule layer's target lanes, episode accumulators and RNG."""
+        state = {f"learner.{k}": v for k, v in self.learner.state_dict().items()}
+        state.update(self.replay.state_dict())
+        for name, value in vars(self.world.state).items():
+            state[f"world.{name}"] = value
+        state["layer.target_lane"] = self.layer.target_lane
+        for name in ("ep_return", "ep_deploy", "ep_speed", "ep_len", "ep_collision", "ep_success"):
+            state[f"episode.{name}"] = getattr(self, name)
+        state["rng.trainer"] = self.gen.get_state()
+        state["counters.vector_steps"] = torch.tensor([self.vector_steps])
+        state.update({f"method.{k}": v for k, v in self.method.state_dict().items()})
+        return {k: v.detach().contiguous() for k, v in state.items()}
+
+    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
+        pick = lambda prefix: {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}  # noqa: E731
+        self.learner.load_state_dict(pick("learner."))
+        self.replay.load_state_dict(state)
+        world = pick("world.")
+        self.world.state = WorldState(**{k: v.to(self.device) for k, v in world.items()})
+        self.layer.reset()
+        self.layer.target_lane = state["layer.target_lane"].to(self.device)
+        for name in ("ep_return", "ep_deploy", "ep_speed", "ep_len", "ep_collision", "ep_success"):
+            setattr(self, name, state[f"episode.{name}"].to(self.device).clone())
+        self.gen.set_state(state["rng.trainer"].cpu() if self.device.type == "cpu" else state["rng.trainer"])
+        self.vector_steps = int(state["counters.vector_steps"][0])
+        self.method.load_state_dict(pick("method."))
+        self.current = self.layer.observe(self.world)

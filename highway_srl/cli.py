@@ -1,0 +1,116 @@
+"""The one entry point: `highway-srl <command>`.
+
+Every user error (unknown name, out-of-range number, missing or mismatched run folder) ends as one line
+on stderr and exit status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from highway_srl import __version__
+from highway_srl.constants import SCENARIOS, TRAFFIC_LEVELS
+
+
+class UserError(ValueError):
+    """A problem with what the user asked for; printed as one line."""
+
+
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def _scenario(p: argparse.ArgumentParser, default: str | None = "two-lane") -> None:
+    p.add_argument("--scenario", default=default, help=f"one of {', '.join(SCENARIOS)}")
+    p.add_argument("--traffic", default="C", help=f"traffic level, one of {', '.join(TRAFFIC_LEVELS)}")
+    p.add_argument("--adversarial", action="store_true", help="group-3 adversarial cut-ins")
+
+
+def _cmd_render(args) -> int:
+    from highway_srl.experiments.episodes import render_episode
+
+    paths = render_episode(
+        run=args.run, scenario=args.scenario, traffic=args.traffic, adversarial=args.adversarial,
+        policy=args.policy, seed=args.seed, out=Path(args.out), steps=args.steps, backend=args.backend,
+    )
+    for p in paths:
+        print(p)
+    return 0
+
+
+def _cmd_bench(args) -> int:
+    from highway_srl.experiments import bench
+
+    if args.what == "sim":
+        result = bench.bench_sim(args.scenario, args.traffic, args.envs, args.steps, args.device, args.adversarial)
+        line = (f"{result['scenario']} level {result['traffic']}: {result['envs']} envs x {result['steps']} steps on "
+                f"{result['device']}: {result['env_steps_per_s']:,.0f} env-steps/s = "
+                f"{result['sim_s_per_wall_s']:,.0f} simulated s per wall s")
+    else:
+        from highway_srl.experiments.train import bench_train
+
+        result = bench_train(method=args.method, scenario=args.scenario, traffic=args.traffic, envs=args.envs,
+                             steps=args.steps, device=args.device, seeds=args.seeds)
+        line = (f"train {result['method']} on {result['scenario']} ({result['envs']} envs, {result['seeds']} seed(s), "
+                f"{result['device']}): {result['env_steps_per_s']:,.0f} env-steps/s, "
+                f"projected {result['projected_paper_run_min']:.1f} min for 5e5 steps")
+    print(json.dumps(result) if args.json else line)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="highway-srl", description="Safe RL of autonomous highway driving (MoE-RM-SRL).")
+    parser.add_argument("--version", action="version", version=f"highway-srl {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("render", help="draw an episode as a GIF and a PNG frame")
+    p.add_argument("run", nargs="?", default=None, help="a trained run folder (omit to use --policy)")
+    _scenario(p, default=None)
+    p.add_argument("--policy", default="idm", help="built-in ego when no run is given: idm")
+    p.add_argument("--backend", default="ours", help="simulator: ours, sumo, highway-env")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--steps", type=_positive, default=320)
+    p.add_argument("--out", default="episode.gif", help="GIF path; the PNG goes beside it")
+    p.set_defaults(func=_cmd_render)
+
+    p = sub.add_parser("bench", help="measure throughput")
+    p.add_argument("what", choices=["sim", "train"])
+    _scenario(p)
+    p.add_argument("--method", default="moe-rm-srl")
+    p.add_argument("--envs", type=_positive, default=4096)
+    p.add_argument("--steps", type=_positive, default=200)
+    p.add_argument("--seeds", type=_positive, default=1, help="independent agents trained at once (bench train)")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=_cmd_bench)
+
+    from highway_srl.experiments import commands  # the training / evaluation / study commands
+
+    commands.add_parsers(sub, _scenario, _positive)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except KeyboardInterrupt:
+        print("highway-srl: interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, FileNotFoundError, FileExistsError) as err:  # user errors: one line, no traceback
+        print(f"highway-srl: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

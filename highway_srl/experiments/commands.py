@@ -1,0 +1,150 @@
+"""Subcommands for training, evaluation and the study; registered on the CLI's parser."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from highway_srl.constants import SCENARIOS, TRAFFIC_LEVELS
+
+
+def _levels(text: str) -> list[str]:
+    """'A..F', 'A-F', 'A,C,F' or 'C'."""
+    t = text.replace(" ", "").upper()
+    for sep in ("..", "-"):
+        if sep in t:
+            a, b = t.split(sep, 1)
+            names = list(TRAFFIC_LEVELS)
+            if a not in names or b not in names:
+                raise ValueError(f"unknown traffic range {text!r}; levels are {', '.join(names)}")
+            return names[names.index(a): names.index(b) + 1]
+    levels = [x for x in t.split(",") if x]
+    for x in levels:
+        if x not in TRAFFIC_LEVELS:
+            raise ValueError(f"unknown traffic level {x!r}; choose from {', '.join(TRAFFIC_LEVELS)}")
+    return levels
+
+
+def _seeds(text: str) -> tuple[int, ...]:
+    try:
+        seeds = tuple(int(s) for s in text.split(",") if s.strip())
+    except ValueError:
+        raise ValueError(f"--seeds takes comma-separated integers, got {text!r}") from None
+    if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
+        raise ValueError(f"--seeds needs distinct non-negative integers, got {text!r}")
+    return seeds
+
+
+def train_config(args):
+    from highway_srl.agents.dqn import DQNConfig
+    from highway_srl.agents.trainer import TrainConfig
+    from highway_srl.sim.world import check_device
+
+    if args.scenario not in SCENARIOS:
+        raise ValueError(f"unknown scenario {args.scenario!r}; choose one of {', '.join(SCENARIOS)}")
+    if args.traffic not in TRAFFIC_LEVELS:
+        raise ValueError(f"unknown traffic level {args.traffic!r}; choose one of {', '.join(TRAFFIC_LEVELS)}")
+    check_device(args.device)
+    options = {k: True for k in ("no_mapping", "no_moe", "no_rm") if getattr(args, k, False)}
+    dqn = DQNConfig(total_steps=args.steps)
+    if args.learning_starts is not None:
+        dqn.learning_starts = args.learning_starts
+    return TrainConfig(method=args.method, scenario=args.scenario, traffic=args.traffic, adversarial=args.adversarial,
+                       steps=args.steps, envs=args.envs, seeds=_seeds(args.seeds), device=args.device,
+                       updates_per_step=args.updates_per_step, share_transitions=args.share_transitions, dqn=dqn,
+                       options=options)
+
+
+def _cmd_train(args) -> int:
+    from highway_srl.agents.methods import make_method
+    from highway_srl.experiments.train import train_run
+
+    if args.resume:
+        cfg = None
+    else:
+        cfg = train_config(args)
+        make_method(cfg.method, cfg.scenario, len(cfg.seeds), cfg.options)  # validate the name early
+    metrics = train_run(cfg, args.out, resume=args.resume, checkpoint_every=args.checkpoint_every,
+                        progress=not args.quiet)
+    m = metrics["mean"]
+    tc = "n/a" if m["T_c"] is None else f"{m['T_c']:.3f}"
+    tr = "n/a" if m["T_r"] is None else f"{m['T_r']:.1f}"
+    print(f"trained {metrics['method']} on {metrics['scenario']} level {metrics['traffic']}: T_c {tc}, T_r {tr}, "
+          f"rise time {m['rise_time_steps']} steps, {metrics['wall_s']:.0f} s ({metrics['env_steps_per_s']:,.0f} env-steps/s)")
+    print(f"run folder: {args.out}")
+    return 0
+
+
+def format_report(report: dict) -> str:
+    lines = [f"{report['method']} on {report['scenario']}{' (adversarial)' if report['adversarial'] else ''}, "
+             f"{report['episodes_per_level']} episodes per level, backend {report['backend']}:"]
+    for level, r in report["levels"].items():
+        s = f"  level {level}: C_r {r['C_r']['value']:.1%} [{r['C_r']['low']:.1%}, {r['C_r']['high']:.1%}]" \
+            f"  speed {r['avg_speed']['value']:.2f} m/s  R_r {r['R_r']['value']:.1f} ± {r['R_r']['value'] - r['R_r']['low']:.1f}"
+        if "R_s" in r:
+            s += f"  R_s {r['R_s']['value']:.1%}"
+        lines.append(s)
+    return "\n".join(lines)
+
+
+def _cmd_evaluate(args) -> int:
+    from highway_srl.experiments.evaluate import evaluate_run
+
+    out = args.out or str(Path(args.run) / f"eval-{args.backend}.json")
+    report = evaluate_run(args.run, scenario=args.scenario, traffics=_levels(args.traffic) if args.traffic else None,
+                          episodes=args.episodes, adversarial=True if args.adversarial else None, device=args.device,
+                          backend=args.backend, out=out, seed=args.seed)
+    print(json.dumps(report, indent=2) if args.json else format_report(report))
+    if not args.json:
+        print(f"written to {out}")
+    return 0
+
+
+def _cmd_demo(args) -> int:
+    from highway_srl.experiments.demo import run_demo
+
+    run_demo(Path(args.out), steps=args.steps, envs=args.envs, episodes=args.episodes, seed=args.seed)
+    return 0
+
+
+def add_parsers(sub, scenario_args, positive) -> None:
+    p = sub.add_parser("train", help="train a method; writes a run folder")
+    p.add_argument("--method", default="moe-rm-srl")
+    scenario_args(p)
+    p.add_argument("--steps", type=positive, default=500_000, help="environment steps per seed (paper: 5e5)")
+    p.add_argument("--envs", type=positive, default=16, help="environments per seed stepped together")
+    p.add_argument("--seeds", default="0", help="comma-separated seeds trained together, e.g. 0,1,2,3")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--updates-per-step", type=int, default=4, help="gradient steps per acting expert per vector step")
+    p.add_argument("--learning-starts", type=int, default=None)
+    p.add_argument("--share-transitions", action="store_true",
+                   help="store each transition in every expert whose action set holds the executed action")
+    p.add_argument("--no-mapping", action="store_true", help="ablation: without the ID/rule/action/control mappings")
+    p.add_argument("--no-moe", action="store_true", help="ablation: one DQN over A*, no gated experts")
+    p.add_argument("--no-rm", action="store_true", help="ablation: reward without the reward machine")
+    p.add_argument("--checkpoint-every", type=positive, default=50_000, help="env steps between resume checkpoints")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--out", required=True, help="run folder")
+    p.set_defaults(func=_cmd_train)
+
+    p = sub.add_parser("evaluate", help="deployment metrics of a trained run")
+    p.add_argument("run")
+    p.add_argument("--scenario", default=None)
+    p.add_argument("--traffic", default=None, help="levels, e.g. C, A..F or A,C,F (default: the training level)")
+    p.add_argument("--adversarial", action="store_true")
+    p.add_argument("--episodes", type=positive, default=100)
+    p.add_argument("--backend", default="ours", help="ours, sumo or highway-env")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--seed", type=int, default=0, help="offset of the evaluation episodes' seeds")
+    p.add_argument("--out", default=None, help="JSON file (default: RUN/eval-BACKEND.json)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=_cmd_evaluate)
+
+    p = sub.add_parser("demo", help="the main job: train MoE-RM-SRL briefly, evaluate on levels A-F, write a report")
+    p.add_argument("--steps", type=positive, default=30_000)
+    p.add_argument("--envs", type=positive, default=16)
+    p.add_argument("--episodes", type=positive, default=50)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default="out")
+    p.set_defaults(func=_cmd_demo)

@@ -1,0 +1,76 @@
+"""Single episodes for people to look at: renderings and the demo summary."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+
+from highway_srl.sim import World
+from highway_srl.sim.policies import idm_ego
+from highway_srl.sim.render import capture, save_gif, save_png
+
+POLICIES = ("idm",)
+
+
+def _policy_driver(policy: str):
+    if policy not in POLICIES:
+        raise ValueError(f"unknown policy {policy!r}; choose one of {', '.join(POLICIES)} or give a trained run folder")
+    return lambda world: (idm_ego(world), [])
+
+
+def render_episode(run, scenario, traffic, adversarial, policy, seed, out: Path, steps: int = 320, backend: str = "ours"):
+    """Drive one episode and write `out` (GIF) and a PNG of its middle frame beside it."""
+    if backend != "ours":
+        raise ValueError(f"rendering on backend {backend!r} is not available; use ours")
+    if out.suffix.lower() != ".gif":
+        raise ValueError(f"--out must end in .gif, got {str(out)!r}")
+    if run is not None:
+        from highway_srl.experiments.policy import load_policy
+
+        driver, scenario = load_policy(run, scenario)
+    else:
+        driver = _policy_driver(policy)
+        scenario = scenario or "two-lane"
+    world = World(scenario, traffic, adversarial=adversarial, num_envs=1, seed=seed)
+    frames = [capture(world)]
+    for _ in range(steps):
+        (lane, speed), text = driver(world)
+        events = world.step(lane, speed)
+        frames.append(capture(world, collision=bool(events.collision[0]), text=text))
+        if bool(events.terminated[0] | events.truncated[0]):
+            break
+    gif = save_gif(world.road, frames, out)
+    png = save_png(world.road, frames[len(frames) // 2], out.with_suffix(".png"))
+    return [gif, png]
+
+
+def idm_summary(scenarios, traffic: str, episodes: int, seed: int = 0) -> list[dict]:
+    """Collision-free rate, mean speed and success of the built-in IDM ego, batched per scenario."""
+    rows = []
+    for scenario in scenarios:
+        world = World(scenario, traffic, num_envs=episodes, seed=seed)
+        alive = torch.ones(episodes, dtype=torch.bool)
+        collided = torch.zeros(episodes, dtype=torch.bool)
+        success = torch.zeros(episodes, dtype=torch.bool)
+        speed_sum = torch.zeros(episodes)
+        steps = torch.zeros(episodes)
+        for _ in range(world.max_steps):
+            lane, speed = idm_ego(world)
+            events = world.step(lane, speed)
+            speed_sum += torch.where(alive, world.ego_speed, 0.0)
+            steps += alive.float()
+            collided |= alive & events.collision
+            success |= alive & events.success
+            alive &= ~(events.terminated | events.truncated)
+            if not bool(alive.any()):
+                break
+        if scenario == "merge":
+            success = world.stage_flags()["merged"] & ~collided
+        rows.append({
+            "scenario": scenario, "traffic": traffic, "episodes": episodes,
+            "collision_free_rate": float((~collided).float().mean()),
+            "average_speed_mps": float((speed_sum / steps.clamp(min=1)).mean()),
+            "success_rate": float(success.float().mean()) if scenario in ("merge", "exit") else None,
+        })
+    return rows

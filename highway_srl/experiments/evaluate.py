@@ -1,0 +1,129 @@
+"""`highway-srl evaluate`: deployment metrics (§4.2) of a trained run, greedy, no learning.
+
+C_r: share of episodes without a collision (the paper's Table 5 "C_r"; its text also says R_c), average
+speed, deployment reward R_r (formulas under Tables 5-6) and success rate R_s, each with a 95% interval.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+from pathlib import Path
+
+import torch
+
+from highway_srl.agents.dqn import DQNLearner
+from highway_srl.agents.methods import make_method
+from highway_srl.constants import OBS_DIM, TRAFFIC_LEVELS
+from highway_srl.experiments.runs import provenance, write_json
+from highway_srl.rules import SafetyLayer, collision_free_rate, deployment_step_reward, mean_interval, success_rate
+from highway_srl.sim import World
+
+EVAL_SEED_BASE = 1_000_000_000  # evaluation episodes never reuse a training seed
+
+
+def run_episodes(world, method, learner) -> dict[str, torch.Tensor]:
+    """Drive one episode in every env of `world` (no resets); per-env results (B,)."""
+    layer = SafetyLayer(world.road, **method.layer_options)
+    b, dev = world.num_envs, world.device
+    alive = torch.ones(b, dtype=torch.bool, device=dev)
+    collided = torch.zeros(b, dtype=torch.bool, device=dev)
+    success = torch.zeros(b, dtype=torch.bool, device=dev)
+    speed = torch.zeros(b, device=dev)
+    reward = torch.zeros(b, device=dev)
+    steps = torch.zeros(b, device=dev)
+    no_explore = torch.zeros(b, dtype=torch.bool, device=dev)
+    step = layer.observe(world)
+    for _ in range(world.max_steps):
+        decision = method.decide(learner, step, no_explore, None)
+        lane, target = layer.act(decision.action, decision.use_second)
+        events = world.step(lane, target)
+        step = layer.observe(world)
+        flags = world.stage_flags()
+        r = deployment_step_reward(world.scenario, step.primary.speed_ratio, r_star=step.primary.r_star,
+                                   r_merge=flags["merged"], r_exit1=flags["exit1"], r_exit2=flags["exit2"])
+        reward += torch.where(alive, r, 0.0)
+        speed += torch.where(alive, world.ego_speed, 0.0)
+        steps += alive.float()
+        collided |= alive & events.collision
+        success |= alive & events.success
+        alive &= ~(events.terminated | events.truncated)
+        if not bool(alive.any()):
+            break
+    if world.scenario == "merge":
+        success = world.stage_flags()["merged"]
+    return {
+        "collided": collided.cpu(),
+        "success": (success & ~collided).cpu(),
+        "avg_speed": (speed / steps.clamp(min=1)).cpu(),
+        "deploy_reward": (reward - float(world.max_steps) * collided.float()).cpu(),
+    }
+
+
+def summarise(results: dict[str, torch.Tensor], scenario: str) -> dict:
+    cr = collision_free_rate(results["collided"])
+    out = {
+        "episodes": int(results["collided"].numel()),
+        "C_r": asdict(cr),
+        "avg_speed": asdict(mean_interval(results["avg_speed"])),
+        "R_r": asdict(mean_interval(results["deploy_reward"])),
+    }
+    if scenario in ("merge", "exit"):
+        out["R_s"] = asdict(success_rate(results["success"]))
+    return out
+
+
+def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, episodes: int = 100,
+                 adversarial: bool | None = None, device: str = "cpu", backend: str = "ours", out: str | Path | None = None,
+                 seed: int = 0) -> dict:
+    from highway_srl.experiments.train import load_learner_state
+
+    cfg, tensors, meta = load_learner_state(run)
+    if scenario is not None and scenario != cfg.scenario:
+        raise ValueError(f"run {str(run)!r} was trained on scenario {cfg.scenario!r}, not {scenario!r}")
+    scenario = cfg.scenario
+    adversarial = cfg.adversarial if adversarial is None else adversarial
+    traffics = list(traffics or [cfg.traffic])
+    for t in traffics:
+        if t not in TRAFFIC_LEVELS:
+            raise ValueError(f"unknown traffic level {t!r}; choose from {', '.join(TRAFFIC_LEVELS)}")
+    if episodes < 1:
+        raise ValueError(f"episodes must be positive, got {episodes}")
+    seeds = len(cfg.seeds)
+    method = make_method(cfg.method, scenario, seeds, cfg.options)
+    learner = DQNLearner(method.num_members, method.action_mask(), cfg.dqn, device, OBS_DIM, method.out_dim)
+    learner.load_state_dict(tensors)
+    report = {"run": str(run), "method": cfg.method, "scenario": scenario, "adversarial": adversarial,
+              "backend": backend, "episodes_per_level": episodes, "trained_seeds": list(cfg.seeds), "levels": {},
+              **provenance()}
+    for traffic in traffics:
+        env_seeds = [EVAL_SEED_BASE + seed * 100_003 + e for _ in range(seeds) for e in range(episodes)]
+        if backend == "ours":
+            world = World(scenario, traffic, adversarial, episodes * seeds, device, env_seeds)
+            results = run_episodes(world, method, learner)
+        else:
+            results = _run_backend(backend, scenario, traffic, adversarial, env_seeds, method, learner, episodes)
+        level = summarise(results, scenario)
+        level["per_seed"] = {
+            str(s): summarise({k: v[i * episodes:(i + 1) * episodes] for k, v in results.items()}, scenario)
+            for i, s in enumerate(cfg.seeds)
+        } if seeds > 1 else None
+        report["levels"][traffic] = level
+    if out is not None:
+        write_json(Path(out), report)
+    return report
+
+
+def _run_backend(backend, scenario, traffic, adversarial, env_seeds, method, learner, episodes):
+    """Simulators we did not write run one env per process: episodes one after another."""
+    from highway_srl.backends import make_backend
+
+    if len(env_seeds) != episodes:
+        raise ValueError(f"evaluation on backend {backend!r} takes runs trained with one seed")
+    parts = []
+    for env_seed in env_seeds:
+        world = make_backend(backend, scenario, traffic, adversarial, env_seed)
+        parts.append(run_episodes(world, method, learner))
+        close = getattr(world, "close", None)
+        if close is not None:
+            close()
+    return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
