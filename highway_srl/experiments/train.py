@@ -117,6 +117,7 @@ def train_run(cfg: TrainConfig, out: str | Path, resume: bool = False, checkpoin
             log.unlink(missing_ok=True)
         prior_wall = 0.0
         write_json(out / "config.json", {"config": cfg.to_dict(), **provenance()})
+    log.touch()
     scalars = _Scalars(out)
     recent: list[Episode] = []
     bar = _progress(cfg.steps, trainer.env_steps, progress)
