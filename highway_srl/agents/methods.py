@@ -15,7 +15,7 @@ from highway_srl.agents.dqn import DQNLearner
 from highway_srl.agents.gating import expert_action_mask
 from highway_srl.agents.moe import MoEPolicy
 from highway_srl.agents.replay import ExpertReplay
-from highway_srl.rules import choose_second, scenario_reward
+from highway_srl.rules import ACTIONS, SafetyLayer, choose_second, scenario_reward
 
 
 @dataclass
@@ -37,6 +37,15 @@ class Method:
         self.scenario, self.seeds, self.options = scenario, seeds, dict(options)
 
     num_members: int = 1
+    action_names: tuple[str, ...] = ACTIONS  # what Decision.action indexes (5-action baselines: FIVE_ACTIONS)
+
+    def make_layer(self, road):
+        """The rule layer this method observes and acts through (trainer, evaluate, render)."""
+        return SafetyLayer(road, **self.layer_options)
+
+    def safe_mask(self, model) -> torch.Tensor:
+        """(B, len(action_names)) bool: the safe actions of a model step, in action_names order."""
+        return model.mask
 
     def action_mask(self) -> torch.Tensor:
         raise NotImplementedError
@@ -114,4 +123,10 @@ METHODS: dict[str, type[Method]] = {"moe-rm-srl": MoERMSRL}
 def make_method(name: str, scenario: str, seeds: int, options: dict | None = None) -> Method:
     if name not in METHODS:
         raise ValueError(f"unknown method {name!r}; choose one of {', '.join(METHODS)}")
+    if name == MoERMSRL.name and options:  # the ablations of Table 6 (and a check of the option names)
+        return _baselines.make_ablation(scenario, seeds, dict(options))
     return METHODS[name](scenario, seeds, options or {})
+
+
+# The baselines, the rule-based driver and the ablations register themselves in METHODS.
+from highway_srl.agents import baselines as _baselines  # noqa: E402

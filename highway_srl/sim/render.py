@@ -97,6 +97,16 @@ def _figure():
     return plt, fig, ax
 
 
+def frame_array(road: Road, frame: Frame) -> np.ndarray:
+    """The frame as an (H, W, 3) uint8 image."""
+    plt, fig, ax = _figure()
+    _draw(ax, road, frame)
+    fig.canvas.draw()
+    image = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+    plt.close(fig)
+    return image
+
+
 def save_png(road: Road, frame: Frame, path: str | Path) -> Path:
     plt, fig, ax = _figure()
     _draw(ax, road, frame)

@@ -1,0 +1,367 @@
+"""The paper's baselines (§4.2), the rule-based driver and the ablations of Table 6, as `Method`s.
+
+Each one is the few lines that make it different; the trainer, replay, learner, logs and metrics are
+shared. docs/notes-baselines.md says exactly what each is and which choices the paper leaves open.
+
+  method       view    actions  acting rule                                   training reward
+  rl           raw     A (5)    ε-greedy argmax Q                             speed, -320 on collision
+  sr-rl        raw     A (5)    highest-Q action that passes the safe check  speed, -320 on collision
+  rm-rl        mapped  A* (4)   ε-greedy argmax Q                             r_RM (the paper's)
+  mp-rl        mapped  A* (4)   highest-Q action that passes Table 1          speed, -320 on collision
+  lm-rl        mapped  A* (4)   argmax Q_r - λ Q_c, λ by dual ascent          speed, -320; cost: u2/u4, collision
+  et-rl        mapped  A* (4)   ε-greedy Q; the rule expert takes over unsafe speed, -320 on collision
+  rule-based   mapped  A* (4)   IDM + MOBIL-style, first safe action          (logged: r_RM); no learning
+  ablations of moe-rm-srl: no_mapping (raw view, A*), no_moe (one DQN, no gate: rm-rl), no_rm (speed reward)
+
+"raw" is `rules.raw.RawSafetyLayer` (no ID/rule/action/control mapping), "mapped" is `rules.SafetyLayer`.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from highway_srl.agents.dqn import DQNLearner
+from highway_srl.agents.ensemble import ensemble_forward
+from highway_srl.agents.methods import METHODS, Decision, Method, MoERMSRL
+from highway_srl.agents.moe import grouped_q
+from highway_srl.agents.rule_based import rule_based_action, rule_based_decision
+from highway_srl.constants import EPISODE_STEPS
+from highway_srl.rules import OBS_NAMES, SafetyLayer, choose_second, scenario_reward
+from highway_srl.rules.raw import FIVE_ACTIONS, RawSafetyLayer
+from highway_srl.rules.reward_machine import U2, U4
+
+EGO_VX_COLUMN = OBS_NAMES.index("ego_vx")  # v_x / v_max (every view normalises it the same way)
+
+# LM-RL (docs/notes-baselines.md, "LM-RL"): constraint E[Σ_t c_t] <= COST_LIMIT per episode.
+COST_LIMIT = 16.0  # 5% of an episode's 320 steps with a safe-distance rule violated
+COLLISION_COST = float(EPISODE_STEPS)  # a collision costs as much as violating the rules for a whole episode
+LAMBDA_LR = 0.01  # dual step per unit of episode cost above the limit
+LAMBDA_INIT = 0.0
+LAMBDA_MAX = 100.0
+
+
+def speed_reward(scenario: str, next_obs: torch.Tensor, events, flags: dict) -> torch.Tensor:
+    """The speed/collision reward of RL, SR-RL, MP-RL, LM-RL, ET-RL and w/o RM, (B,): the paper's scenario
+    reward (§4.3) with r_RM replaced by v/v_max: two-lane and multi-lane v/v_max; merge 0.7 v/v_max +
+    0.3 r_merge; exit 0.5 v/v_max + 0.25 (r_exit,1 + r_exit,2); -320 on collision. At most 320 an episode,
+    as the RM reward."""
+    speed = next_obs[:, EGO_VX_COLUMN].clamp(0.0, 1.0)
+    return scenario_reward(scenario, speed, events.collision, r_merge=flags["merged"], r_exit1=flags["exit1"],
+                           r_exit2=flags["exit2"])
+
+
+def env_seed(batch: int, seeds: int, device) -> torch.Tensor:
+    """(B,) long: the seed (agent) each env belongs to; envs are split into `seeds` equal blocks."""
+    return torch.arange(batch, device=device) // (batch // seeds)
+
+
+def random_allowed(allowed: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
+    """(B,) long: an action drawn uniformly from the True entries of allowed (B, K) (each row has one)."""
+    u = torch.rand(allowed.shape, generator=generator, device=allowed.device)
+    return u.masked_fill(~allowed, -1.0).argmax(1)
+
+
+def highest_allowed(scores: torch.Tensor, allowed: torch.Tensor) -> torch.Tensor:
+    """(B,) long: argmax of scores (B, K) over the allowed (B, K) entries; trying actions in descending
+    score order and executing the first allowed one picks exactly this."""
+    return scores.masked_fill(~allowed, float("-inf")).argmax(1)
+
+
+def highest_allowed_value(scores: torch.Tensor, allowed: torch.Tensor) -> torch.Tensor:
+    """(B,): the largest score (B, K) among the allowed (B, K) entries."""
+    return scores.masked_fill(~allowed, float("-inf")).amax(1)
+
+
+def dual_update(lam: torch.Tensor, episode_cost: torch.Tensor, limit: float = COST_LIMIT, lr: float = LAMBDA_LR,
+                lam_max: float = LAMBDA_MAX) -> torch.Tensor:
+    """One projected dual-ascent step on the Lagrange multiplier: λ <- clip(λ + lr (J_c - d), 0, λ_max)."""
+    return (lam + lr * (episode_cost - limit)).clamp(0.0, lam_max)
+
+
+class _Options:
+    """Methods that take no options reject them by name."""
+
+    allowed_options: frozenset[str] = frozenset()
+
+    def _check_options(self) -> None:
+        unknown = sorted(k for k, v in self.options.items() if v and k not in self.allowed_options)
+        if unknown:
+            allowed = ", ".join(sorted(self.allowed_options)) or "none"
+            raise ValueError(f"method {self.name!r} does not take option(s) {', '.join(unknown)} (it takes: {allowed}); "
+                             "--no-mapping/--no-moe/--no-rm are ablations of moe-rm-srl")
+
+
+class SingleDQN(_Options, Method):
+    """One DQN per seed over the view's action set, ε-greedy; `shielded` restricts both the greedy and the
+    random action to the safe set (the safe-action check of Mirchevska et al. 2018)."""
+
+    name = "single-dqn"
+    view = "mapped"  # "mapped": SafetyLayer; "raw": RawSafetyLayer
+    out_dim = 4
+    shielded = False
+    reward_kind = "speed"  # "speed": speed_reward; "rm": the paper's r_RM reward
+    members_per_seed = 1
+
+    def __init__(self, scenario, seeds, options):
+        super().__init__(scenario, seeds, options)
+        self._check_options()
+        self.num_members = seeds * self.members_per_seed
+
+    def make_layer(self, road):
+        if self.view == "raw":
+            return RawSafetyLayer(road, five_actions=self.out_dim == 5)
+        return SafetyLayer(road, **self.layer_options)
+
+    def action_mask(self) -> torch.Tensor:
+        return torch.ones(self.num_members, self.out_dim, dtype=torch.bool)
+
+    def safe_mask(self, model) -> torch.Tensor:
+        return model.mask5 if self.out_dim == 5 else model.mask
+
+    def allowed(self, model) -> torch.Tensor:
+        return self.safe_mask(model) if self.shielded else torch.ones_like(self.safe_mask(model))
+
+    def scores(self, learner: DQNLearner, model) -> torch.Tensor:
+        """(B, out_dim) values the greedy action maximises: Q of each env's own seed's network."""
+        return grouped_q(learner, model.obs, self.seeds, self.members_per_seed)[:, 0]
+
+    def member(self, batch: int, device) -> torch.Tensor:
+        return env_seed(batch, self.seeds, device) * self.members_per_seed
+
+    def decide(self, learner, step, explore, generator) -> Decision:
+        use_second = None
+        if bool(step.two_models.any()):  # multi-lane middle lane: the model whose best action is worth more
+            values = [highest_allowed_value(self.scores(learner, m), self.allowed(m)) for m in (step.primary, step.second)]
+            use_second = choose_second(values[0], values[1], step.two_models)
+        model = step.select(use_second)
+        action = self.act(learner, model, explore, generator)
+        return Decision(action, self.member(action.shape[0], action.device), use_second)
+
+    def act(self, learner, model, explore, generator) -> torch.Tensor:
+        allowed = self.allowed(model)
+        greedy = highest_allowed(self.scores(learner, model), allowed)
+        return torch.where(explore, random_allowed(allowed, generator), greedy)
+
+    def reward(self, scenario, nxt, events, flags):
+        if self.reward_kind == "rm":
+            return super().reward(scenario, nxt, events, flags)
+        return speed_reward(scenario, nxt.obs, events, flags), None
+
+
+class RL(SingleDQN):
+    """Standard DQN over A, no reward machine, no shield, no mappings."""
+
+    name, view, out_dim, shielded, reward_kind = "rl", "raw", 5, False, "speed"
+    action_names = FIVE_ACTIONS
+
+
+class SRRL(SingleDQN):
+    """Safe-action checking (Mirchevska et al. 2018): the highest-Q action of A that passes the check."""
+
+    name, view, out_dim, shielded, reward_kind = "sr-rl", "raw", 5, True, "speed"
+    action_names = FIVE_ACTIONS
+
+
+class RMRL(SingleDQN):
+    """RM-DRL: one DQN over A* trained on the paper's RM reward; no shield."""
+
+    name, view, out_dim, shielded, reward_kind = "rm-rl", "mapped", 4, False, "rm"
+
+
+class MPRL(SingleDQN):
+    """SR-RL with the four mappings: the highest-Q action of A* that Table 1 (on R*_SV) allows."""
+
+    name, view, out_dim, shielded, reward_kind = "mp-rl", "mapped", 4, True, "speed"
+
+
+class ETRL(SingleDQN):
+    """Expert takeover (Wang et al. 2023): the DQN proposes (ε-greedy over A*); when Table 1 rejects the
+    proposal, the rule-based driver's action executes instead, and the DQN learns from what executed."""
+
+    name, view, out_dim, shielded, reward_kind = "et-rl", "mapped", 4, False, "speed"
+
+    def decide(self, learner, step, explore, generator) -> Decision:
+        d = super().decide(learner, step, explore, generator)
+        model = step.select(d.use_second)
+        ego_v = torch.hypot(step.snapshot.ego_vx, step.snapshot.ego_vy)
+        accepted = model.mask.gather(1, d.action.unsqueeze(1)).squeeze(1)
+        self.takeover = ~accepted  # (B,) bool, for analysis and tests
+        action = torch.where(accepted, d.action, rule_based_action(model, ego_v, self.scenario))
+        return Decision(action, d.member, d.use_second)
+
+
+class LMRL(SingleDQN):
+    """Lagrangian DQN (constrained RL, Achiam et al. 2017 / Ray et al. 2019 style): per seed a reward
+    network Q_r (member 2s) and a cost network Q_c (member 2s + 1) over A*; the policy is
+    argmax_a Q_r - λ Q_c; λ >= 0 follows dual ascent on the measured episode cost against COST_LIMIT.
+
+    Cost per step: 1 when the RM state reached is u2 or u4 (a safe-distance rule is violated), COLLISION_COST
+    on a collision. Both networks are trained on the same sampled transitions with targets evaluated at the
+    current policy's next action a' = argmax Q_r,online - λ Q_c,online (s'), read from the target networks.
+    Options: cost_limit, lambda_lr, lambda_init (for experiments; the defaults are the documented values).
+    """
+
+    name, view, out_dim, shielded, reward_kind = "lm-rl", "mapped", 4, False, "speed"
+    members_per_seed = 2
+    uses_cost = True
+    allowed_options = frozenset({"cost_limit", "lambda_lr", "lambda_init"})
+
+    def __init__(self, scenario, seeds, options):
+        super().__init__(scenario, seeds, options)
+        self.cost_limit = float(self.options.get("cost_limit", COST_LIMIT))
+        self.lambda_lr = float(self.options.get("lambda_lr", LAMBDA_LR))
+        self.lam = torch.full((seeds,), float(self.options.get("lambda_init", LAMBDA_INIT)))
+        self.episode_cost: torch.Tensor | None = None  # (B,) cost of each env's running episode
+
+    def scores(self, learner, model) -> torch.Tensor:
+        q = grouped_q(learner, model.obs, self.seeds, self.members_per_seed)  # (B, 2, 4)
+        lam = self.lam.to(q.device)[env_seed(q.shape[0], self.seeds, q.device)]
+        return q[:, 0] - lam[:, None] * q[:, 1]
+
+    def reward(self, scenario, nxt, events, flags):
+        reward, _ = super().reward(scenario, nxt, events, flags)
+        violated = ((nxt.rm_state == U2) | (nxt.rm_state == U4)).to(reward.dtype)
+        cost = torch.where(events.collision, torch.full_like(reward, COLLISION_COST), violated)
+        return reward, cost
+
+    def update(self, learner: DQNLearner, members: torch.Tensor, batch: dict) -> None:
+        """members (K,): reward networks (even indices) whose buffers gave batch; their cost networks
+        (members + 1) train on the same transitions. The learner's own target is y = r + γ(1 - done) max Q;
+        passing the policy-evaluation targets as rewards with done = True makes it exactly y."""
+        k = members.shape[0]
+        both = torch.cat([members, members + 1]).to(learner.device)
+        obs, nxt = batch["obs"], batch["next_obs"]
+        with torch.no_grad():
+            x = torch.cat([nxt, nxt])
+            q_on = ensemble_forward(learner.online.unflatten(learner.online.gather(both)), x)  # (2K, N, 4)
+            q_tg = ensemble_forward(learner.target.unflatten(learner.target.gather(both)), x)
+            lam = self.lam.to(q_on.device)[members.to(q_on.device) // self.members_per_seed]
+            a_next = (q_on[:k] - lam[:, None, None] * q_on[k:]).argmax(-1, keepdim=True)  # (K, N, 1)
+            bootstrap = learner.config.gamma * (~batch["done"]).to(obs.dtype)
+            y_r = batch["reward"] + bootstrap * q_tg[:k].gather(2, a_next).squeeze(2)
+            y_c = batch["cost"] + bootstrap * q_tg[k:].gather(2, a_next).squeeze(2)
+        learner.update(both, {
+            "obs": torch.cat([obs, obs]), "action": torch.cat([batch["action"]] * 2), "reward": torch.cat([y_r, y_c]),
+            "next_obs": torch.cat([nxt, nxt]), "done": torch.ones(2 * k, obs.shape[1], dtype=torch.bool, device=obs.device),
+        })
+
+    def after_step(self, trainer, events, cost, done) -> None:
+        """Dual ascent: once per vector step in which episodes of a seed ended, λ_seed moves by
+        LAMBDA_LR x (mean cost of those episodes - COST_LIMIT)."""
+        if self.episode_cost is None or self.episode_cost.shape != cost.shape:
+            self.episode_cost = torch.zeros_like(cost)
+        self.episode_cost = self.episode_cost.to(cost.device) + cost
+        if not bool(done.any()):
+            return
+        seed = env_seed(cost.shape[0], self.seeds, cost.device)
+        ended = done.to(cost.dtype)
+        total = torch.zeros(self.seeds, device=cost.device).index_add_(0, seed, self.episode_cost * ended)
+        count = torch.zeros(self.seeds, device=cost.device).index_add_(0, seed, ended)
+        stepped = dual_update(self.lam.to(cost.device), total / count.clamp(min=1), self.cost_limit, self.lambda_lr)
+        self.lam = torch.where(count > 0, stepped, self.lam.to(cost.device)).cpu()
+        self.episode_cost = torch.where(done, torch.zeros_like(self.episode_cost), self.episode_cost)
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        state = {"lambda": self.lam.clone()}
+        if self.episode_cost is not None:
+            state["episode_cost"] = self.episode_cost.clone()
+        return state
+
+    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
+        if "lambda" not in state:
+            raise ValueError("lm-rl state has no 'lambda' (the Lagrange multiplier)")
+        if state["lambda"].shape != self.lam.shape:
+            raise ValueError(f"lm-rl state has λ of shape {tuple(state['lambda'].shape)}, expected {tuple(self.lam.shape)}")
+        self.lam = state["lambda"].detach().cpu().clone().float()
+        cost = state.get("episode_cost")
+        self.episode_cost = None if cost is None else cost.detach().clone().float()
+
+
+class RuleBased(_Options, Method):
+    """IDM + MOBIL-style driver through Table 1 (agents/rule_based.py); nothing is learned: no transition is
+    stored and no network is updated (one unused network per seed keeps the run folder's shape)."""
+
+    name = "rule-based"
+    trains = False
+
+    def __init__(self, scenario, seeds, options):
+        super().__init__(scenario, seeds, options)
+        self._check_options()
+        self.num_members = seeds
+
+    def action_mask(self) -> torch.Tensor:
+        return torch.ones(self.num_members, self.out_dim, dtype=torch.bool)
+
+    def decide(self, learner, step, explore, generator) -> Decision:
+        action, use_second = rule_based_decision(step, self.scenario)
+        return Decision(action, torch.full_like(action, -1), use_second)
+
+    def store(self, replay, d, obs, reward, next_obs, done, cost, share=False):
+        pass
+
+    def members_to_update(self, acted, sizes, batch_size):
+        return acted.new_zeros(0)
+
+
+class Manual(Method):
+    """A person at the keyboard; not trainable here."""
+
+    name = "manual"
+
+    def __init__(self, scenario, seeds, options):
+        raise ValueError(f"method 'manual' is a person at the keyboard: run `highway-srl play --scenario {scenario} "
+                         "--traffic C --out FOLDER`; its episodes.jsonl enters the same tables")
+
+
+# ------------------------------------------------------------------ ablations of MoE-RM-SRL (Table 6)
+ABLATIONS = ("no_mapping", "no_moe", "no_rm")
+
+
+class MoEAblation(MoERMSRL):
+    """MoE-RM-SRL with the mappings (no_mapping: the raw view over A*) and/or the RM reward (no_rm: the
+    speed reward) removed; the 11 gated experts stay."""
+
+    def __init__(self, scenario, seeds, options):
+        super().__init__(scenario, seeds, options)
+        self.no_mapping, self.no_rm = bool(self.options.get("no_mapping")), bool(self.options.get("no_rm"))
+        self.name = "moe-rm-srl/" + "+".join(k for k in ABLATIONS if self.options.get(k))
+
+    def make_layer(self, road):
+        return RawSafetyLayer(road, five_actions=False) if self.no_mapping else super().make_layer(road)
+
+    def reward(self, scenario, nxt, events, flags):
+        if self.no_rm:
+            return speed_reward(scenario, nxt.obs, events, flags), None
+        return super().reward(scenario, nxt, events, flags)
+
+
+class NoMoE(SingleDQN):
+    """w/o MoE: one DQN over A*, no gate and so no shield; what is left of the safety logic is the RM reward
+    (this is rm-rl; with no_mapping on the raw view, with no_rm on the speed reward)."""
+
+    allowed_options = frozenset(ABLATIONS)
+
+    def __init__(self, scenario, seeds, options):
+        super().__init__(scenario, seeds, options)
+        self.view = "raw" if self.options.get("no_mapping") else "mapped"
+        self.reward_kind = "speed" if self.options.get("no_rm") else "rm"
+        self.name = "moe-rm-srl/" + "+".join(k for k in ABLATIONS if self.options.get(k))
+
+
+def make_ablation(scenario: str, seeds: int, options: dict) -> Method:
+    """MoE-RM-SRL with options: no_mapping, no_moe, no_rm (any combination; none set gives the full method)."""
+    unknown = sorted(k for k, v in options.items() if v and k not in ABLATIONS)
+    if unknown:
+        raise ValueError(f"method 'moe-rm-srl' does not take option(s) {', '.join(unknown)}; "
+                         f"its ablations are {', '.join(ABLATIONS)}")
+    if options.get("no_moe"):
+        return NoMoE(scenario, seeds, options)
+    if any(options.get(k) for k in ABLATIONS):
+        return MoEAblation(scenario, seeds, options)
+    return MoERMSRL(scenario, seeds, options)
+
+
+BASELINES: dict[str, type[Method]] = {
+    cls.name: cls for cls in (RL, SRRL, RMRL, MPRL, LMRL, ETRL, RuleBased, Manual)
+}
+METHODS.update(BASELINES)

@@ -1,0 +1,102 @@
+"""Checkpoints as a folder: `model.safetensors` (tensors) and `meta.json` (everything else).
+
+No pickle anywhere: a checkpoint can be loaded without executing code from it. Both files are
+written atomically (temporary file in the same folder, fsync, os.replace), so an interrupted
+save leaves the previous checkpoint intact rather than a half-written one.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors.torch import load_file
+from safetensors.torch import save as safetensors_bytes
+
+MODEL_FILE = "model.safetensors"
+META_FILE = "meta.json"
+
+
+class CheckpointError(ValueError):
+    """A checkpoint folder is missing, unreadable, or belongs to a different run setup."""
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _fsync_dir(path: Path) -> None:
+    # Makes the renames themselves durable; not every platform can open a directory.
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def save_checkpoint(path_dir: str | os.PathLike, tensors: dict[str, torch.Tensor], meta: dict[str, Any]) -> None:
+    """Write tensors to path_dir/model.safetensors and meta (JSON-serialisable) to path_dir/meta.json.
+
+    Tensors are moved to the CPU and made contiguous; two entries must not share memory.
+    The tensors are written first, so a meta.json on disk always describes a complete model file.
+    """
+    folder = Path(path_dir)
+    folder.mkdir(parents=True, exist_ok=True)
+    cpu = {k: v.detach().to("cpu").contiguous() for k, v in tensors.items()}
+    meta_text = json.dumps(meta, indent=2, sort_keys=True)  # fails here, before anything is written
+    _write_atomic(folder / MODEL_FILE, safetensors_bytes(cpu))
+    _write_atomic(folder / META_FILE, (meta_text + "\n").encode())
+    _fsync_dir(folder)
+
+
+def load_checkpoint(
+    path_dir: str | os.PathLike, expect: dict[str, Any] | None = None, device: torch.device | str = "cpu"
+) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """Read (tensors, meta) from a folder written by `save_checkpoint`.
+
+    expect: keys whose meta values must match, e.g. {"method": "moe-rm-srl", "scenario": "merge"}.
+    Raises CheckpointError with a one-line message naming the file and the problem.
+    """
+    folder = Path(path_dir)
+    if not folder.is_dir():
+        raise CheckpointError(f"checkpoint folder {folder} does not exist")
+    meta_path, model_path = folder / META_FILE, folder / MODEL_FILE
+    for path in (meta_path, model_path):
+        if not path.is_file():
+            raise CheckpointError(f"checkpoint {folder} has no {path.name} ({path} is missing)")
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise CheckpointError(f"{meta_path} is not valid JSON: {err}") from None
+    if not isinstance(meta, dict):
+        raise CheckpointError(f"{meta_path} holds a {type(meta).__name__}, expected a JSON object")
+    for key, want in (expect or {}).items():
+        if key not in meta:
+            raise CheckpointError(f"checkpoint {folder} has no {key!r} in {META_FILE} (expected {want!r})")
+        if meta[key] != want:
+            raise CheckpointError(f"checkpoint {folder} was trained with {key} {meta[key]!r}, not {want!r}")
+    try:
+        tensors = load_file(model_path, device=str(device))
+    except Exception as err:  # safetensors raises its own SafetensorError, OSError, or others
+        first_line = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise CheckpointError(f"{model_path} is truncated or corrupt: {first_line}") from None
+    return tensors, meta

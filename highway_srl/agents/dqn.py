@@ -1,0 +1,189 @@
+"""DQN for a stack of experts (Algorithm 1, the DQN target and loss of §2.3).
+
+Each member m has its own online and target network, its own action set A_m (a row of
+`action_mask`), its own Adam state and its own target-update counter. `update` trains any
+subset of members in one batched pass, at a cost proportional to the subset's size.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+from highway_srl.agents.ensemble import MLPEnsemble, ensemble_forward
+from highway_srl.constants import BATCH_SIZE, GAMMA, LEARNING_RATE, OBS_DIM, TOTAL_STEPS
+
+
+@dataclass
+class DQNConfig:
+    """Table 2 values, plus the choices the paper leaves open (see docs/notes-agents.md)."""
+
+    lr: float = LEARNING_RATE  # Table 2
+    gamma: float = GAMMA  # Table 2
+    batch_size: int = BATCH_SIZE  # Table 2, per member update
+    total_steps: int = TOTAL_STEPS  # Table 2, environment steps
+    hidden: int = 256  # §4.1
+    buffer_capacity: int = 100_000  # per member; not in the paper
+    learning_starts: int = 1000  # environment steps collected before the first update
+    target_update_interval: int = 500  # n_t, counted in the member's own updates (n_i,j)
+    eps_start: float = 1.0
+    eps_end: float = 0.05
+    exploration_fraction: float = 0.2  # epsilon decays linearly over this share of total_steps
+    grad_clip_norm: float = 10.0  # per member, over all its parameters; <= 0 disables
+    huber: bool = False  # False: the paper's squared TD error; True: Huber (smooth L1, beta 1)
+    adam_betas: tuple[float, float] = (0.9, 0.999)
+    adam_eps: float = 1e-8
+
+    def epsilon(self, step: int) -> float:
+        """Exploration probability at environment step `step` (linear, then flat)."""
+        span = max(1.0, self.exploration_fraction * self.total_steps)
+        frac = min(1.0, step / span)
+        return self.eps_start + frac * (self.eps_end - self.eps_start)
+
+
+class DQNLearner:
+    """Online/target `MLPEnsemble`s with masked Q-values and a per-member Adam.
+
+    action_mask: (M, out_dim) bool, true on each member's actions. All state lives on `device`;
+    generator (CPU) seeds the initial weights, which the target network copies.
+    """
+
+    def __init__(
+        self,
+        num_members: int,
+        action_mask: torch.Tensor,
+        config: DQNConfig | None = None,
+        device: torch.device | str | None = None,
+        obs_dim: int = OBS_DIM,
+        out_dim: int = 4,
+        generator: torch.Generator | None = None,
+    ) -> None:
+        self.config = config if config is not None else DQNConfig()
+        self.device = torch.device(device) if device is not None else torch.device("cpu")
+        if tuple(action_mask.shape) != (num_members, out_dim):
+            raise ValueError(f"action_mask has shape {tuple(action_mask.shape)}, expected {(num_members, out_dim)}")
+        self.num_members, self.obs_dim, self.out_dim = num_members, obs_dim, out_dim
+        self.action_mask = action_mask.to(self.device, torch.bool)
+        hidden = self.config.hidden
+        self.online = MLPEnsemble(num_members, obs_dim, out_dim, hidden, self.device, generator)
+        self.target = MLPEnsemble(num_members, obs_dim, out_dim, hidden, self.device)
+        self.target.copy_from(self.online)
+        self.target.requires_grad_(False)
+        # torch.optim.Adam keeps moving a parameter whose gradient is zero (its first moment
+        # is still non-zero from earlier steps) and has one step count for the whole tensor,
+        # which would drive every member's bias correction by the others' updates. Experts are
+        # trained independently (§3.4), so each member gets its own moments and step count,
+        # and a step touches only the members being updated.
+        self.exp_avg = torch.zeros_like(self.online.flat, requires_grad=False)  # (M, P)
+        self.exp_avg_sq = torch.zeros_like(self.online.flat, requires_grad=False)
+        self.adam_step = torch.zeros(num_members, device=self.device)
+        self.target_update_count = torch.zeros(num_members, dtype=torch.long, device=self.device)  # n_i,j
+
+    @torch.no_grad()
+    def q_values(self, obs: torch.Tensor) -> torch.Tensor:
+        """obs: (B, obs_dim) -> (M, B, out_dim); actions outside a member's set are -inf."""
+        q = self.online(obs.to(self.device))
+        return q.masked_fill(~self.action_mask.unsqueeze(1), float("-inf"))
+
+    @torch.no_grad()
+    def greedy(self, obs: torch.Tensor) -> torch.Tensor:
+        """obs: (B, obs_dim) -> (B, M) long: each member's argmax over its own action set."""
+        return self.q_values(obs).argmax(-1).T
+
+    def update(self, members: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """One gradient step for each of `members` (K,) long (distinct indices) on its own batch.
+
+        batch: "obs" (K, N, obs_dim), "action" (K, N) long (inside the member's set),
+        "reward" (K, N), "next_obs" (K, N, obs_dim), "done" (K, N) bool (termination only).
+        TD target y = r + gamma (1 - done) max_{a' in A_m} Q_target,m(s', a') (Algorithm 1);
+        loss = mean over N of (y - Q_m(s, a))^2 (the DQN loss of §2.3), or Huber if configured.
+        Returns the per-member losses (K,), detached. Nothing here reads a value back to the
+        host, so on a GPU the call queues work without synchronising.
+        """
+        cfg = self.config
+        idx = members.to(self.device)
+        k = idx.shape[0]
+        obs, next_obs = batch["obs"].to(self.device), batch["next_obs"].to(self.device)
+        action, reward = batch["action"].to(self.device), batch["reward"].to(self.device)
+        done = batch["done"].to(self.device)
+
+        with torch.no_grad():
+            old_target = self.target.gather(idx)  # (K, P)
+            q_next = ensemble_forward(self.target.unflatten(old_target), next_obs)
+            q_next = q_next.masked_fill(~self.action_mask[idx].unsqueeze(1), float("-inf")).amax(-1)
+            y = reward + cfg.gamma * (~done).to(q_next.dtype) * q_next
+
+        # A gathered copy of the K members as the leaf: the backward pass and the optimiser
+        # then work on (K, P) only, never on the full (M, P) stack.
+        theta = self.online.flat.detach().index_select(0, idx).requires_grad_()
+        with torch.enable_grad():
+            q = ensemble_forward(self.online.unflatten(theta), obs)
+            q_sa = q.gather(2, action.unsqueeze(2)).squeeze(2)
+            if cfg.huber:
+                per_member = F.smooth_l1_loss(q_sa, y, reduction="none").mean(1)
+            else:
+                per_member = (q_sa - y).square().mean(1)
+            # The sum gives each member the gradient of its own mean loss.
+            (grad,) = torch.autograd.grad(per_member.sum(), theta)
+
+        with torch.no_grad():
+            new_theta = self._adam_step(idx, theta.detach(), grad)
+            self.online.flat.index_copy_(0, idx, new_theta)
+            # Algorithm 1: n_i,j counts the member's updates; when it exceeds n_t the target
+            # takes the online weights and the counter restarts.
+            count = self.target_update_count[idx] + 1
+            sync = count > cfg.target_update_interval
+            self.target_update_count.index_copy_(0, idx, torch.where(sync, torch.zeros_like(count), count))
+            self.target.flat.index_copy_(0, idx, torch.where(sync.unsqueeze(1), new_theta, old_target))
+        return per_member.detach()
+
+    def _adam_step(self, idx: torch.Tensor, theta: torch.Tensor, grad: torch.Tensor) -> torch.Tensor:
+        """Adam with per-member gradient-norm clipping on gathered rows theta, grad (K, P).
+
+        Updates the moments and step counts of members idx and returns their new weights (K, P).
+        """
+        cfg = self.config
+        beta1, beta2 = cfg.adam_betas
+        if cfg.grad_clip_norm > 0:
+            norm = grad.square().sum(1, keepdim=True).sqrt_()
+            grad = grad * (cfg.grad_clip_norm / (norm + 1e-6)).clamp_(max=1.0)
+        step = self.adam_step[idx] + 1
+        self.adam_step.index_copy_(0, idx, step)
+        step_size = (cfg.lr / (1 - beta1**step)).unsqueeze(1)
+        bias2_sqrt = (1 - beta2**step).sqrt_().unsqueeze(1)
+        m = self.exp_avg.index_select(0, idx).lerp_(grad, 1 - beta1)
+        v = self.exp_avg_sq.index_select(0, idx).mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
+        self.exp_avg.index_copy_(0, idx, m)
+        self.exp_avg_sq.index_copy_(0, idx, v)
+        # theta - lr / (1 - beta1^t) * m / (sqrt(v / (1 - beta2^t)) + eps), as torch.optim.Adam
+        denom = v.sqrt().div_(bias2_sqrt).add_(cfg.adam_eps).div_(step_size)
+        return theta.addcdiv(m, denom, value=-1.0)
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        """Flat dict of tensors (safetensors-friendly): weights, Adam moments, counters."""
+        return {
+            "online.flat": self.online.flat.detach(),
+            "target.flat": self.target.flat.detach(),
+            "adam.exp_avg": self.exp_avg,
+            "adam.exp_avg_sq": self.exp_avg_sq,
+            "adam.step": self.adam_step,
+            "target_update_count": self.target_update_count,
+            "action_mask": self.action_mask,
+        }
+
+    @torch.no_grad()
+    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
+        """Copy a `state_dict()` (from this learner's shape) into this learner, in place."""
+        mine = self.state_dict()
+        missing = sorted(set(mine) - set(state))
+        if missing:
+            raise ValueError(f"learner state is missing {missing}")
+        for key, dst in mine.items():
+            src = state[key].to(dst.device)
+            if src.shape != dst.shape:
+                raise ValueError(f"learner state {key} has shape {tuple(src.shape)}, expected {tuple(dst.shape)}")
+            if key == "action_mask" and not torch.equal(src.to(torch.bool), dst):
+                raise ValueError("learner state was saved with different expert action sets")
+            dst.copy_(src)

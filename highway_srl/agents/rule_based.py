@@ -1,0 +1,97 @@
+"""A rule-based ego driver: IDM car following and MOBIL-style lane changes through the paper's safety check.
+
+It chooses among A* on a SafetyLayer's model of the step, so it drives every scenario the mappings cover:
+  1. longitudinal wish from the IDM (Treiber et al.) behind SV1: Faster above +A_FASTER, Slower below
+     -A_SLOWER, else Idle;
+  2. lane-change wish: keep changing while a change is under way (the control mapping aborts a change on
+     any other action before the boundary is crossed); mandatory changes (merge: off the on-ramp; exit:
+     towards the off-ramp); discretionary changes when the IDM acceleration behind SV2 beats the one
+     behind SV1 by MOBIL_GAIN (not while near the boundary, never back onto a ramp, only rightwards on exit);
+  3. the first action of a fixed preference order that Table 1 marks safe (every row has one).
+It is the expert of ET-RL and, as the method `rule-based`, a driver with no learning.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from highway_srl.constants import V_MAX_MPS, VEHICLE_LENGTH_M
+from highway_srl.rules import FASTER, IDLE, LANE_CHANGE, SLOWER, ModelStep, SafetyStep, choose_second
+from highway_srl.sim.traffic import idm_accel
+
+JAM_DISTANCE_M = 2 * VEHICLE_LENGTH_M  # IDM s0 of the ego: a cautious style's desired headway
+A_FASTER_MPS2 = 0.5  # IDM acceleration above which the driver asks for Faster
+A_SLOWER_MPS2 = 1.0  # IDM deceleration above which it asks for Slower
+MOBIL_GAIN_MPS2 = 0.5  # acceleration advantage a discretionary lane change must bring (hysteresis)
+NO_WISH = float("-inf")
+
+# Preference order (first safe one wins), per wish: Faster, Idle, Slower, LaneChange. Braking comes
+# before Idle when Faster is not allowed, because Idle is safe without R1 only when braking is not.
+_ORDER = {
+    FASTER: (FASTER, SLOWER, IDLE, LANE_CHANGE),
+    IDLE: (IDLE, SLOWER, FASTER, LANE_CHANGE),
+    SLOWER: (SLOWER, IDLE, LANE_CHANGE, FASTER),
+}
+
+
+def _rank_table(device) -> torch.Tensor:
+    """(3, 4): score of each action (higher = preferred) for each longitudinal wish."""
+    table = torch.zeros(3, 4, device=device)
+    for wish, order in _ORDER.items():
+        for rank, a in enumerate(order):
+            table[wish, a] = float(len(order) - rank)
+    return table
+
+
+def lane_change_wish(model: ModelStep, ego_v: torch.Tensor, scenario: str) -> torch.Tensor:
+    """(B,) float: how much the driver wants a LaneChange on this model (NO_WISH = not at all; +inf = must)."""
+    lanes, veh, gaps = model.lanes, model.vehicles, model.gaps_m
+    v0 = torch.full_like(ego_v, V_MAX_MPS)
+    s0 = torch.full_like(ego_v, JAM_DISTANCE_M)
+    a_own = idm_accel(ego_v, v0, s0, gaps[:, 0], veh.vx[:, 0], ~veh.virtual[:, 0])
+    a_adj = idm_accel(ego_v, v0, s0, gaps[:, 1], veh.vx[:, 1], ~veh.virtual[:, 1])
+    adjacent = lanes.adjacent_lane  # global lane LaneChange goes to (off the boundary), -1: none
+    real = adjacent >= 0
+    gain = a_adj - a_own
+    if scenario == "merge":
+        mandatory = real & (lanes.current_lane == 2) & (adjacent == 1)
+        allowed = real & (adjacent < 2)
+    elif scenario == "exit":
+        mandatory = real & (adjacent == lanes.current_lane + 1)
+        allowed = mandatory
+    else:
+        mandatory = torch.zeros_like(real)
+        allowed = real
+    discretionary = allowed & ~model.m_l_ego & (gain > MOBIL_GAIN_MPS2)
+    in_progress = model.t_id != lanes.c_id  # a change under way that has not crossed the boundary yet
+    wish = torch.where(discretionary, gain, torch.full_like(gain, NO_WISH))
+    return torch.where(mandatory | in_progress, torch.full_like(gain, float("inf")), wish)
+
+
+def longitudinal_wish(model: ModelStep, ego_v: torch.Tensor) -> torch.Tensor:
+    """(B,) long in {FASTER, IDLE, SLOWER}: the IDM's acceleration behind SV1, discretised."""
+    veh = model.vehicles
+    a = idm_accel(ego_v, torch.full_like(ego_v, V_MAX_MPS), torch.full_like(ego_v, JAM_DISTANCE_M), model.gaps_m[:, 0],
+                  veh.vx[:, 0], ~veh.virtual[:, 0])
+    return torch.where(a > A_FASTER_MPS2, FASTER, torch.where(a < -A_SLOWER_MPS2, SLOWER, IDLE)).long()
+
+
+def rule_based_action(model: ModelStep, ego_v: torch.Tensor, scenario: str) -> torch.Tensor:
+    """(B,) long index into ACTIONS: the driver's action on this model, always inside model.mask."""
+    wish = longitudinal_wish(model, ego_v)
+    score = _rank_table(ego_v.device)[wish]  # (B, 4)
+    wants_change = lane_change_wish(model, ego_v, scenario) > NO_WISH
+    score[:, LANE_CHANGE] = torch.where(wants_change, 10.0, score[:, LANE_CHANGE])
+    return score.masked_fill(~model.mask, float("-inf")).argmax(1)
+
+
+def rule_based_decision(step: SafetyStep, scenario: str) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """(action (B,), use_second (B,) bool or None) on a SafetyStep; on a multi-lane middle lane the model
+    whose lane change the driver wants more (left on a tie) decides."""
+    ego_v = torch.hypot(step.snapshot.ego_vx, step.snapshot.ego_vy)
+    use_second = None
+    if bool(step.two_models.any()):
+        w1 = lane_change_wish(step.primary, ego_v, scenario)
+        w2 = lane_change_wish(step.second, ego_v, scenario)
+        use_second = choose_second(w1, w2, step.two_models)
+    return rule_based_action(step.select(use_second), ego_v, scenario), use_second
