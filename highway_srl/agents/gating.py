@@ -11,11 +11,7 @@ from __future__ import annotations
 
 import torch
 
-# The reduced action set A* in the order used by every tensor in the project. This tuple
-# will move to `highway_srl.rules`; it is defined here so the learning core does not wait on it.
-ACTIONS = ("Faster", "Idle", "Slower", "LaneChange")
-FASTER, IDLE, SLOWER, LANE_CHANGE = range(4)
-NUM_ACTIONS = len(ACTIONS)
+from highway_srl.rules.safe_actions import ACTIONS, FASTER, IDLE, LANE_CHANGE, NUM_ACTIONS, SLOWER  # noqa: F401
 
 
 def _without(*dropped: int) -> tuple[int, ...]:
