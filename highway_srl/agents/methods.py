@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import torch
 
 from highway_srl.agents.dqn import DQNLearner
-from highway_srl.agents.gating import expert_action_mask
+from highway_srl.agents.gating import EXPERT_NAMES, expert_action_mask
 from highway_srl.agents.moe import MoEPolicy
 from highway_srl.agents.replay import ExpertReplay
 from highway_srl.rules import ACTIONS, SafetyLayer, choose_second, scenario_reward
@@ -89,6 +89,7 @@ class MoERMSRL(Method):
         super().__init__(scenario, seeds, options)
         self.policy = MoEPolicy(seeds)
         self.num_members = self.policy.members_per_seed * seeds
+        self.member_names = list(EXPERT_NAMES)
 
     def action_mask(self) -> torch.Tensor:
         return self.policy.action_mask()

@@ -16,7 +16,7 @@ from highway_srl.agents.dqn import DQNConfig, DQNLearner
 from highway_srl.agents.methods import Method, make_method
 from highway_srl.agents.replay import ExpertReplay
 from highway_srl.constants import OBS_DIM
-from highway_srl.rules import SafetyLayer, deployment_step_reward
+from highway_srl.rules import deployment_step_reward
 from highway_srl.sim import World
 from highway_srl.sim.state import WorldState
 
@@ -82,7 +82,7 @@ class Trainer:
         self.world = World(cfg.scenario, cfg.traffic, cfg.adversarial, self.batch, cfg.device, env_seeds)
         self.device = self.world.device
         self.method: Method = make_method(cfg.method, cfg.scenario, self.num_seeds, cfg.options)
-        self.layer = SafetyLayer(self.world.road, **self.method.layer_options)
+        self.layer = self.method.make_layer(self.world.road)
         self.learner = DQNLearner(
             self.method.num_members, self.method.action_mask(), cfg.dqn, self.device, OBS_DIM, self.method.out_dim,
             generator=torch.Generator(device="cpu").manual_seed(cfg.seeds[0]),
@@ -92,6 +92,8 @@ class Trainer:
         self.gen = torch.Generator(device=self.device).manual_seed(cfg.seeds[0] + 12345)
         self.seed_of_env = torch.arange(self.batch, device=self.device) // cfg.envs
         self.vector_steps = 0
+        # acting member counts, slot 0 = the final fallback (no expert)
+        self.usage = torch.zeros(self.method.num_members + 1, dtype=torch.long, device=self.device)
         self._zero_episode_stats()
         self.current = self.layer.observe(self.world)
 
@@ -115,6 +117,7 @@ class Trainer:
         explore = torch.rand(self.batch, generator=self.gen, device=self.device) < eps
         decision = self.method.decide(self.learner, cur, explore, self.gen)
         lane, speed = layer.act(decision.action, decision.use_second)
+        self.usage += torch.bincount(decision.member + 1, minlength=self.usage.shape[0])
         events = world.step(lane, speed)
         nxt = layer.observe(world)
         flags = world.stage_flags()
@@ -187,6 +190,7 @@ class Trainer:
             state[f"episode.{name}"] = getattr(self, name)
         state["rng.trainer"] = self.gen.get_state()
         state["counters.vector_steps"] = torch.tensor([self.vector_steps])
+        state["counters.usage"] = self.usage
         state.update({f"method.{k}": v for k, v in self.method.state_dict().items()})
         return {k: v.detach().contiguous() for k, v in state.items()}
 
@@ -202,5 +206,6 @@ class Trainer:
             setattr(self, name, state[f"episode.{name}"].to(self.device).clone())
         self.gen.set_state(state["rng.trainer"].cpu() if self.device.type == "cpu" else state["rng.trainer"])
         self.vector_steps = int(state["counters.vector_steps"][0])
+        self.usage = state["counters.usage"].to(self.device).clone()
         self.method.load_state_dict(pick("method."))
         self.current = self.layer.observe(self.world)

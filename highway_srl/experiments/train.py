@@ -139,8 +139,10 @@ def train_run(cfg: TrainConfig, out: str | Path, resume: bool = False, checkpoin
             }
             scalars.log(trainer.env_steps, stats)
             if bar is not None:
+                share = trainer.usage.float() / trainer.usage.sum().clamp(min=1)
                 bar.set_postfix(sps=f"{rate:,.0f}", ret=f"{stats['mean_return']:.1f}",
-                                free=f"{stats['collision_free']:.2f}", eps=f"{stats['epsilon']:.2f}")
+                                free=f"{stats['collision_free']:.2f}", eps=f"{stats['epsilon']:.2f}",
+                                first=f"{float(share[1::trainer.method.num_members // len(cfg.seeds)].sum()):.0%}")
                 bar.update(trainer.env_steps - last_log)
             last_log, t_log, s_log = trainer.env_steps, now, trainer.env_steps
         if trainer.env_steps - last_ckpt >= checkpoint_every and trainer.env_steps < cfg.steps:
@@ -151,15 +153,28 @@ def train_run(cfg: TrainConfig, out: str | Path, resume: bool = False, checkpoin
         bar.close()
     wall = prior_wall + time.perf_counter() - started
     learner_state = {f"learner.{k}": v for k, v in trainer.learner.state_dict().items()}
+    learner_state.update({f"method.{k}": v for k, v in trainer.method.state_dict().items()})  # e.g. LM-RL's λ
     save_checkpoint(out / "model", learner_state, {**_meta(cfg, trainer), "wall_s": wall})
     metrics = training_metrics(read_jsonl(log), list(cfg.seeds))
     metrics.update({"method": cfg.method, "scenario": cfg.scenario, "traffic": cfg.traffic,
                     "adversarial": cfg.adversarial, "env_steps_per_seed": trainer.env_steps, "seeds": list(cfg.seeds),
                     "wall_s": round(wall, 2), "env_steps_per_s": round(trainer.env_steps * len(cfg.seeds) / max(wall, 1e-9), 1),
-                    "device": str(trainer.device), **provenance()})
+                    "device": str(trainer.device), "member_usage": _usage(trainer), **provenance()})
     write_json(out / "metrics.json", metrics)
     _remove_resume(out / "resume")
     return metrics
+
+
+def _usage(trainer: Trainer) -> dict:
+    """Share of decisions made by each member (per seed, by expert name for MoE), and by the fallback."""
+    counts = trainer.usage.cpu()
+    total = max(int(counts.sum()), 1)
+    per_seed = trainer.method.num_members // len(trainer.config.seeds)
+    names = getattr(trainer.method, "member_names", None) or [f"member{i}" for i in range(per_seed)]
+    out = {"fallback": round(int(counts[0]) / total, 6)}
+    for i, name in enumerate(names):
+        out[name] = round(int(counts[1 + i::per_seed].sum()) / total, 6)
+    return out
 
 
 def _remove_resume(path: Path) -> None:
@@ -189,7 +204,9 @@ def load_learner_state(run: str | Path, expect: dict | None = None):
     if expect:
         expected.update(expect)
     tensors, meta = load_checkpoint(folder / "model", expect=expected)
-    return cfg, {k[len("learner."):]: v for k, v in tensors.items() if k.startswith("learner.")}, meta
+    state = {k[len("learner."):]: v for k, v in tensors.items() if k.startswith("learner.")}
+    state.update({k: v for k, v in tensors.items() if k.startswith("method.")})  # the learner ignores these keys
+    return cfg, state, meta
 
 
 def bench_train(method: str, scenario: str, traffic: str, envs: int, steps: int, device: str, seeds: int = 1) -> dict:
