@@ -14,12 +14,17 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install -q -e ".[test]"
 	touch $(STAMP)
 
+# the tests also exercise the SUMO and highway-env backends (optional extras for users)
+$(VENV)/.extras: $(STAMP)
+	$(BIN)/python -m pip install -q -e ".[test,sumo,highway-env]"
+	touch $(VENV)/.extras
+
 setup: $(STAMP)
 
 run: $(STAMP)
 	$(BIN)/highway-srl demo --out $(OUT)
 
-test: $(STAMP)
+test: $(VENV)/.extras
 	$(BIN)/python -m pytest
 
 bench: $(STAMP)
