@@ -428,6 +428,11 @@ class HighwayEnvBackend:
     def ego_speed(self) -> torch.Tensor:
         return torch.tensor([float(self._frame.v[0])], dtype=torch.float32)
 
+    @property
+    def state(self):
+        """The current scene as a one-env WorldState (for renderings; read-only use)."""
+        return self._core.sync(self._frame)
+
     def stage_flags(self) -> dict[str, torch.Tensor]:
         return self._core.stage_flags()
 

@@ -21,8 +21,6 @@ def _policy_driver(policy: str):
 
 def render_episode(run, scenario, traffic, adversarial, policy, seed, out: Path, steps: int = 320, backend: str = "ours"):
     """Drive one episode and write `out` (GIF) and a PNG of its middle frame beside it."""
-    if backend != "ours":
-        raise ValueError(f"rendering on backend {backend!r} is not available; use ours")
     if out.suffix.lower() != ".gif":
         raise ValueError(f"--out must end in .gif, got {str(out)!r}")
     if run is not None:
@@ -32,7 +30,15 @@ def render_episode(run, scenario, traffic, adversarial, policy, seed, out: Path,
     else:
         driver = _policy_driver(policy)
         scenario = scenario or "two-lane"
-    world = World(scenario, traffic, adversarial=adversarial, num_envs=1, seed=seed)
+    if backend == "ours":
+        world = World(scenario, traffic, adversarial=adversarial, num_envs=1, seed=seed)
+    else:
+        from highway_srl.backends import make_backend
+        from highway_srl.backends.drivers import idm_ego_backend
+
+        world = make_backend(backend, scenario, traffic, adversarial, seed)
+        if run is None:  # the built-in driver that only uses the Backend protocol
+            driver = lambda w: (idm_ego_backend(w), [])  # noqa: E731
     frames = [capture(world)]
     for _ in range(steps):
         (lane, speed), text = driver(world)
