@@ -186,7 +186,8 @@ class ETRL(SingleDQN):
         ego_v = torch.hypot(step.snapshot.ego_vx, step.snapshot.ego_vy)
         accepted = model.mask.gather(1, d.action.unsqueeze(1)).squeeze(1)
         self.takeover = ~accepted  # (B,) bool, for analysis and tests
-        action = torch.where(accepted, d.action, rule_based_action(model, ego_v, self.scenario))
+        hold = bool(self.layer_options.get("hold_lane_change", False))
+        action = torch.where(accepted, d.action, rule_based_action(model, ego_v, self.scenario, hold))
         return Decision(action, d.member, d.use_second)
 
 
@@ -279,10 +280,13 @@ class LMRL(SingleDQN):
 
 class RuleBased(_Options, Method):
     """IDM + MOBIL-style driver through Table 1 (agents/rule_based.py); nothing is learned: no transition is
-    stored and no network is updated (one unused network per seed keeps the run folder's shape)."""
+    stored and no network is updated (one unused network per seed keeps the run folder's shape).
+    Its layer holds the lateral plan (hold_lane_change): with the literal Eq. 34 a lane change cannot be
+    completed by any sequence of actions once m*_L = 1 (docs/notes-baselines.md, "Lane changes")."""
 
     name = "rule-based"
     trains = False
+    layer_options = {"hold_lane_change": True}
 
     def __init__(self, scenario, seeds, options):
         super().__init__(scenario, seeds, options)
@@ -293,7 +297,7 @@ class RuleBased(_Options, Method):
         return torch.ones(self.num_members, self.out_dim, dtype=torch.bool)
 
     def decide(self, learner, step, explore, generator) -> Decision:
-        action, use_second = rule_based_decision(step, self.scenario)
+        action, use_second = rule_based_decision(step, self.scenario, self.layer_options["hold_lane_change"])
         return Decision(action, torch.full_like(action, -1), use_second)
 
     def store(self, replay, d, obs, reward, next_obs, done, cost, share=False):

@@ -3,11 +3,13 @@
 It chooses among A* on a SafetyLayer's model of the step, so it drives every scenario the mappings cover:
   1. longitudinal wish from the IDM (Treiber et al.) behind SV1: Faster above +A_FASTER, Slower below
      -A_SLOWER, else Idle;
-  2. lane-change wish: keep changing while a change is under way (the control mapping aborts a change on
-     any other action before the boundary is crossed); mandatory changes (merge: off the on-ramp; exit:
-     towards the off-ramp); discretionary changes when the IDM acceleration behind SV2 beats the one
-     behind SV1 by MOBIL_GAIN (not while near the boundary, never back onto a ramp, only rightwards on exit);
-  3. the first action of a fixed preference order that Table 1 marks safe (every row has one).
+  2. lane-change wish: mandatory changes (merge: off the on-ramp; exit: towards the off-ramp);
+     discretionary changes when the IDM acceleration behind SV2 beats the one behind SV1 by MOBIL_GAIN (not
+     while near the boundary, never back onto a ramp, only rightwards on exit);
+  3. a change under way: with the layer's hold_lane_change (Faster/Idle/Slower keep the target lane) the
+     driver continues it with the longitudinal wish, now also behind the target lane's leader SV2; with the
+     literal Eq. 34 (they reset the target to C_ID) it keeps asking for LaneChange;
+  4. the first action of a fixed preference order that Table 1 marks safe (every row has one).
 It is the expert of ET-RL and, as the method `rule-based`, a driver with no learning.
 """
 
@@ -43,7 +45,12 @@ def _rank_table(device) -> torch.Tensor:
     return table
 
 
-def lane_change_wish(model: ModelStep, ego_v: torch.Tensor, scenario: str) -> torch.Tensor:
+def lane_change_in_progress(model: ModelStep) -> torch.Tensor:
+    """(B,) bool: the target lane differs from the current one (a change that has not crossed the boundary)."""
+    return model.t_id != model.lanes.c_id
+
+
+def lane_change_wish(model: ModelStep, ego_v: torch.Tensor, scenario: str, hold_lane_change: bool = False) -> torch.Tensor:
     """(B,) float: how much the driver wants a LaneChange on this model (NO_WISH = not at all; +inf = must)."""
     lanes, veh, gaps = model.lanes, model.vehicles, model.gaps_m
     v0 = torch.full_like(ego_v, V_MAX_MPS)
@@ -62,36 +69,44 @@ def lane_change_wish(model: ModelStep, ego_v: torch.Tensor, scenario: str) -> to
     else:
         mandatory = torch.zeros_like(real)
         allowed = real
-    discretionary = allowed & ~model.m_l_ego & (gain > MOBIL_GAIN_MPS2)
-    in_progress = model.t_id != lanes.c_id  # a change under way that has not crossed the boundary yet
-    wish = torch.where(discretionary, gain, torch.full_like(gain, NO_WISH))
-    return torch.where(mandatory | in_progress, torch.full_like(gain, float("inf")), wish)
+    start = allowed & ~model.m_l_ego & ((gain > MOBIL_GAIN_MPS2) | mandatory)
+    wish = torch.where(mandatory, torch.full_like(gain, float("inf")), gain)
+    wish = torch.where(start, wish, torch.full_like(gain, NO_WISH))
+    in_progress = lane_change_in_progress(model)
+    if hold_lane_change:  # Faster/Idle/Slower continue the change; LaneChange near the boundary would undo it
+        return torch.where(in_progress, torch.full_like(gain, NO_WISH), wish)
+    return torch.where(in_progress, torch.full_like(gain, float("inf")), wish)
 
 
 def longitudinal_wish(model: ModelStep, ego_v: torch.Tensor) -> torch.Tensor:
-    """(B,) long in {FASTER, IDLE, SLOWER}: the IDM's acceleration behind SV1, discretised."""
+    """(B,) long in {FASTER, IDLE, SLOWER}: the IDM's acceleration behind SV1 (and, during a lane change,
+    behind the target lane's SV2 too), discretised."""
     veh = model.vehicles
-    a = idm_accel(ego_v, torch.full_like(ego_v, V_MAX_MPS), torch.full_like(ego_v, JAM_DISTANCE_M), model.gaps_m[:, 0],
-                  veh.vx[:, 0], ~veh.virtual[:, 0])
+    v0, s0 = torch.full_like(ego_v, V_MAX_MPS), torch.full_like(ego_v, JAM_DISTANCE_M)
+    a = idm_accel(ego_v, v0, s0, model.gaps_m[:, 0], veh.vx[:, 0], ~veh.virtual[:, 0])
+    a_target = idm_accel(ego_v, v0, s0, model.gaps_m[:, 1], veh.vx[:, 1], ~veh.virtual[:, 1])
+    a = torch.where(lane_change_in_progress(model), torch.minimum(a, a_target), a)
     return torch.where(a > A_FASTER_MPS2, FASTER, torch.where(a < -A_SLOWER_MPS2, SLOWER, IDLE)).long()
 
 
-def rule_based_action(model: ModelStep, ego_v: torch.Tensor, scenario: str) -> torch.Tensor:
-    """(B,) long index into ACTIONS: the driver's action on this model, always inside model.mask."""
+def rule_based_action(model: ModelStep, ego_v: torch.Tensor, scenario: str, hold_lane_change: bool = False) -> torch.Tensor:
+    """(B,) long index into ACTIONS: the driver's action on this model, always inside model.mask.
+    hold_lane_change: the SafetyLayer's option of that name (how Faster/Idle/Slower treat a change under way)."""
     wish = longitudinal_wish(model, ego_v)
     score = _rank_table(ego_v.device)[wish]  # (B, 4)
-    wants_change = lane_change_wish(model, ego_v, scenario) > NO_WISH
+    wants_change = lane_change_wish(model, ego_v, scenario, hold_lane_change) > NO_WISH
     score[:, LANE_CHANGE] = torch.where(wants_change, 10.0, score[:, LANE_CHANGE])
     return score.masked_fill(~model.mask, float("-inf")).argmax(1)
 
 
-def rule_based_decision(step: SafetyStep, scenario: str) -> tuple[torch.Tensor, torch.Tensor | None]:
+def rule_based_decision(step: SafetyStep, scenario: str, hold_lane_change: bool = False
+                        ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """(action (B,), use_second (B,) bool or None) on a SafetyStep; on a multi-lane middle lane the model
     whose lane change the driver wants more (left on a tie) decides."""
     ego_v = torch.hypot(step.snapshot.ego_vx, step.snapshot.ego_vy)
     use_second = None
     if bool(step.two_models.any()):
-        w1 = lane_change_wish(step.primary, ego_v, scenario)
-        w2 = lane_change_wish(step.second, ego_v, scenario)
+        w1 = lane_change_wish(step.primary, ego_v, scenario, hold_lane_change)
+        w2 = lane_change_wish(step.second, ego_v, scenario, hold_lane_change)
         use_second = choose_second(w1, w2, step.two_models)
-    return rule_based_action(step.select(use_second), ego_v, scenario), use_second
+    return rule_based_action(step.select(use_second), ego_v, scenario, hold_lane_change), use_second

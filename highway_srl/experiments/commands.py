@@ -107,6 +107,41 @@ def _cmd_demo(args) -> int:
     return 0
 
 
+def _cmd_reproduce(args) -> int:
+    from highway_srl.experiments.runner import reproduce
+
+    if args.budget is None:
+        raise ValueError("choose a budget: --budget smoke, quick or paper (see highway-srl reproduce --help)")
+    if args.backend == "local":  # on Ray the workers' devices count, not this machine's
+        from highway_srl.sim.world import check_device
+
+        check_device(args.device)
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip()) if args.methods else None
+    state = reproduce(args.budget, args.out, jobs=args.jobs, backend=args.backend, address=args.address,
+                      device=args.device, methods=methods)
+    failed = [j for j in state["jobs"].values() if j.get("status") == "failed"]
+    return 1 if failed else 0
+
+
+def _reproduce_epilog() -> str:
+    import textwrap
+
+    from highway_srl.experiments.study import BUDGETS
+
+    return "budgets:\n" + "\n".join(textwrap.fill(b.expected_cost, 100, initial_indent=f"  {b.name:7s}",
+                                                   subsequent_indent=" " * 9) for b in BUDGETS.values())
+
+
+def _cmd_play(args) -> int:
+    from highway_srl.experiments.play import play
+
+    report = play(args.scenario, args.traffic, args.out, adversarial=args.adversarial, episodes=args.episodes,
+                  seed=args.seed, fps=args.fps)
+    print(format_report(report) if report["levels"] else "no episode finished; nothing to report")
+    print(f"run folder: {args.out}")
+    return 0
+
+
 def add_parsers(sub, scenario_args, positive) -> None:
     p = sub.add_parser("train", help="train a method; writes a run folder")
     p.add_argument("--method", default="moe-rm-srl")
@@ -141,6 +176,14 @@ def add_parsers(sub, scenario_args, positive) -> None:
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_evaluate)
 
+    p = sub.add_parser("play", help="drive the ego yourself (the Manual baseline); needs pygame")
+    scenario_args(p)
+    p.add_argument("--episodes", type=positive, default=1)
+    p.add_argument("--seed", type=int, default=0, help="traffic seed of the first episode")
+    p.add_argument("--fps", type=float, default=8.0, help="decisions per second (the paper's 8 Hz)")
+    p.add_argument("--out", required=True, help="run folder: config.json, episodes.jsonl, metrics.json")
+    p.set_defaults(func=_cmd_play)
+
     p = sub.add_parser("demo", help="the main job: train MoE-RM-SRL briefly, evaluate on levels A-F, write a report")
     p.add_argument("--steps", type=positive, default=30_000)
     p.add_argument("--envs", type=positive, default=16)
@@ -148,3 +191,22 @@ def add_parsers(sub, scenario_args, positive) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", default="out")
     p.set_defaults(func=_cmd_demo)
+
+    import argparse
+
+    p = sub.add_parser("reproduce", help="run the paper's whole study (groups 1-3, Tables 5-6, figures, report)",
+                       description="Train and evaluate every method on every scene of the paper's study, then write "
+                       "tables (CSV, Markdown), figures (PNG, SVG) and OUT/report.md + report.html. Finished jobs "
+                       "are kept: run the same command again to resume an interrupted study.",
+                       epilog=_reproduce_epilog(), formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--budget", default=None, help="smoke, quick or paper (see below)")
+    p.add_argument("--out", default="results", help="study folder (default: results)")
+    p.add_argument("--jobs", type=positive, default=None,
+                   help="jobs at a time (local: worker processes; default: the number of cores)")
+    p.add_argument("--backend", default="local", help="local (processes on this machine) or ray")
+    p.add_argument("--address", default=None, help="Ray cluster address (e.g. auto, ray://HOST:10001); "
+                   "default: start a local Ray with --jobs CPUs. Workers need highway-srl installed and --out "
+                   "on a shared file system (the tables' files also travel back with each result)")
+    p.add_argument("--device", default="cpu", help="cpu or cuda")
+    p.add_argument("--methods", default=None, help="only these methods, comma-separated (default: all)")
+    p.set_defaults(func=_cmd_reproduce)

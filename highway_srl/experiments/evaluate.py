@@ -23,7 +23,8 @@ EVAL_SEED_BASE = 1_000_000_000  # evaluation episodes never reuse a training see
 
 def run_episodes(world, method, learner) -> dict[str, torch.Tensor]:
     """Drive one episode in every env of `world` (no resets); per-env results (B,)."""
-    layer = SafetyLayer(world.road, **method.layer_options)
+    make_layer = getattr(method, "make_layer", None)  # a Method; duck-typed test policies give layer_options
+    layer = make_layer(world.road) if make_layer else SafetyLayer(world.road, **method.layer_options)
     b, dev = world.num_envs, world.device
     alive = torch.ones(b, dtype=torch.bool, device=dev)
     collided = torch.zeros(b, dtype=torch.bool, device=dev)
@@ -92,6 +93,7 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
     method = make_method(cfg.method, scenario, seeds, cfg.options)
     learner = DQNLearner(method.num_members, method.action_mask(), cfg.dqn, device, OBS_DIM, method.out_dim)
     learner.load_state_dict(tensors)
+    method.load_state_dict({k[len("method."):]: v for k, v in tensors.items() if k.startswith("method.")})
     report = {"run": str(run), "method": cfg.method, "scenario": scenario, "adversarial": adversarial,
               "backend": backend, "episodes_per_level": episodes, "trained_seeds": list(cfg.seeds), "levels": {},
               **provenance()}

@@ -8,7 +8,6 @@ from highway_srl.agents.dqn import DQNLearner
 from highway_srl.agents.gating import EXPERT_NAMES
 from highway_srl.agents.methods import make_method
 from highway_srl.constants import OBS_DIM
-from highway_srl.rules import ACTIONS, SafetyLayer
 
 
 def load_policy(run, scenario: str | None):
@@ -23,20 +22,21 @@ def load_policy(run, scenario: str | None):
         raise ValueError(f"run {str(run)!r} holds {len(cfg.seeds)} seeds; render needs a single-seed run")
     learner = DQNLearner(method.num_members, method.action_mask(), cfg.dqn, "cpu", OBS_DIM, method.out_dim)
     learner.load_state_dict(tensors)
+    method.load_state_dict({k[len("method."):]: v for k, v in tensors.items() if k.startswith("method.")})
     state = {"layer": None}
 
     def driver(world):
         if state["layer"] is None:
-            state["layer"] = SafetyLayer(world.road, **method.layer_options)
+            state["layer"] = method.make_layer(world.road)
         layer = state["layer"]
         step = layer.observe(world)
         decision = method.decide(learner, step, torch.zeros(world.num_envs, dtype=torch.bool), None)
         model = step.select(decision.use_second)
-        safe = [a for a, ok in zip(ACTIONS, model.mask[0].tolist()) if ok]
+        safe = [a for a, ok in zip(method.action_names, method.safe_mask(model)[0].tolist()) if ok]
         member = int(decision.member[0])
         expert = EXPERT_NAMES[member % len(EXPERT_NAMES)] if member >= 0 and cfg.method == "moe-rm-srl" else (
             "fallback" if member < 0 else f"member {member}")
-        text = [f"{ACTIONS[int(decision.action[0])]} by {expert}", "safe: " + ",".join(safe), f"u{int(model.rm_state[0]) + 1}"]
+        text = [f"{method.action_names[int(decision.action[0])]} by {expert}", "safe: " + ",".join(safe), f"u{int(model.rm_state[0]) + 1}"]
         return layer.act(decision.action, decision.use_second), text
 
     return driver, cfg.scenario

@@ -1,0 +1,308 @@
+"""The safety layer: one step of the paper's rule machinery for B envs (Algorithm 1, lines 6-9, and §3.3).
+
+    layer = SafetyLayer(world.road)              # once per world
+    layer.reset()                                # or layer.reset(mask) for envs that start a new episode
+    step = layer.observe(world)                  # SafetyStep: obs (B, 37), mask (B, 4), RM state, r_RM, ...
+    use_second = ...                             # multi-lane only: where step.two_models and model B's Q wins
+    lane, speed = layer.act(action, use_second)  # -> world.step(lane, speed)
+
+`world` needs `road` and `neighbours(current_lane (B,), adjacent_lane (B,)) -> Snapshot`. observe() does:
+ID mapping -> snapshot -> default virtual vehicles -> R_SVi (Eq. 26) -> m*_L (Eq. 31) -> R*_SVi (Eq. 32)
+-> safe-action mask (Table 1) -> d_VL with the carried T*_ID -> RM state u* (Eqs. U1-U4) -> v* -> r_RM
+-> the 37 inputs. act() is the action and control mapping (Eqs. 34-35, Δv_A, Δv_D). Between the two calls
+the layer keeps one thing per env: the global target lane T* (and the last SafetyStep).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import torch
+
+from highway_srl.constants import (
+    DT_S,
+    EGO_BRAKE_MAX_MPS2,
+    LANE_WIDTH_M,
+    SV_BRAKE_MAX_MPS2,
+    VEHICLE_LENGTH_M,
+)
+from highway_srl.rules.mappings import (
+    EPS_S_M,
+    NO_LANE,
+    IdMapping,
+    LaneModel,
+    Vehicles,
+    crossing_allowed,
+    fill_defaults,
+    id_mapping,
+    lane_exists,
+    near_boundary,
+    rule_mapping,
+    target_lane_local,
+    target_speed,
+)
+from highway_srl.rules.observation import build_observation, ego_progress_feature
+from highway_srl.rules.reward_machine import (
+    D_ACC_M,
+    HighwayPropositions,
+    desired_speed,
+    highway_reward_machine,
+    speed_ratio,
+)
+from highway_srl.rules.safe_actions import LANE_CHANGE, SLOWER, safe_action_mask_from
+from highway_srl.rules.safe_distance import rule_indicator
+from highway_srl.sim.road import Road
+from highway_srl.sim.snapshot import Snapshot
+
+FRONT_SLOTS = (True, True, False, False)  # SV1, SV2 ahead; SV3, SV4 behind
+STANDSTILL_GAP_M = 1.0  # margin subtracted from every bumper gap before the SD rule (docs/paper-notes.md)
+
+
+@dataclass
+class ModelStep:
+    """One two-lane model's view of the step, all (B, ...): obs (B, 37) float32; mask (B, 4) bool in
+    ACTIONS order; rm_state (B,) long u*; r_rm (B,) RM reward; r_sv / r_star (B, 4) bool R_SVi and R*_SVi;
+    m_l_ego (B,) bool; t_id (B,) long local T*_ID used for d_VL; v_star (B,) m/s; speed_ratio (B,) v/v*
+    (clipped, for the deployment reward); gaps_m (B, 4) bumper gaps; vehicles: SV1..SV4 with defaults;
+    lanes: the ID mapping of this model."""
+
+    obs: torch.Tensor
+    mask: torch.Tensor
+    rm_state: torch.Tensor
+    r_rm: torch.Tensor
+    r_sv: torch.Tensor
+    r_star: torch.Tensor
+    m_l_ego: torch.Tensor
+    t_id: torch.Tensor
+    v_star: torch.Tensor
+    speed_ratio: torch.Tensor
+    gaps_m: torch.Tensor
+    vehicles: Vehicles
+    lanes: LaneModel
+
+
+@dataclass
+class SafetyStep:
+    """primary: the model to use everywhere; second: model B of a multi-lane ego in the middle lane, valid
+    where two_models (B,) is True (elsewhere it repeats primary); snapshot: the primary's snapshot."""
+
+    primary: ModelStep
+    second: ModelStep
+    two_models: torch.Tensor
+    snapshot: Snapshot
+
+    def select(self, use_second: torch.Tensor | None) -> ModelStep:
+        """The per-env chosen model: second where use_second & two_models, else primary."""
+        if use_second is None:
+            return self.primary
+        pick = use_second.bool() & self.two_models
+        return _where_tree(pick, self.second, self.primary)
+
+
+def straddle_grouping(r_star: torch.Tensor, m_l_ego: torch.Tensor) -> torch.Tensor:
+    """Eq. 32 extended to the ego: while the ego is near the boundary (m*_L,EV = 1) it occupies both lanes,
+    so the front rule is R*1 ∧ R*2 and the rear rule R*3 ∧ R*4 (the paper groups only for SVs near the
+    boundary). Without it an ego that crossed the boundary and returned, or one finishing a change with
+    Idle, drove into a vehicle it no longer tracked as SV1. r_star (B, 4), m_l_ego (B,) -> (B, 4)."""
+    front = torch.where(m_l_ego, r_star[:, 0] & r_star[:, 1], r_star[:, 0])
+    rear = torch.where(m_l_ego, r_star[:, 2] & r_star[:, 3], r_star[:, 2])
+    return torch.stack([front, r_star[:, 1], rear, r_star[:, 3]], 1)
+
+
+def _where_tree(pick: torch.Tensor, a, b):
+    if isinstance(a, torch.Tensor):
+        p = pick.reshape(pick.shape + (1,) * (a.dim() - 1))
+        return torch.where(p, a, b)
+    return type(a)(**{f.name: _where_tree(pick, getattr(a, f.name), getattr(b, f.name)) for f in fields(a)})
+
+
+def choose_second(q_primary: torch.Tensor, q_second: torch.Tensor, two_models: torch.Tensor) -> torch.Tensor:
+    """§3.3 multi-lane: use model B where there are two models and its Q value is the larger; (B,) bool."""
+    return two_models.bool() & (q_second > q_primary)
+
+
+class SafetyLayer:
+    """Batched rule machinery for one road (see the module docstring for the call order).
+
+    literal_sd: use the printed Eqs. 21-27 instead of the sound safe distance; grouped_rule_mapping: the
+    Eq. 32 reading (see mappings.rule_mapping); hold_lane_change: Faster/Idle/Slower keep the previous
+    target lane ("the lateral plan remains unchanged") instead of the literal Eq. 34 T* = C_ID.
+    """
+
+    def __init__(
+        self,
+        road: Road,
+        *,
+        literal_sd: bool = False,
+        d_acc_m: float = D_ACC_M,
+        eps_s_m: float = EPS_S_M,
+        grouped_rule_mapping: bool = True,
+        hold_lane_change: bool = True,
+        brake_while_changing: bool = True,
+        standstill_gap_m: float = STANDSTILL_GAP_M,
+        straddle_grouping: bool = True,
+        reaction_s: float = DT_S,
+        ego_brake_mps2: float = EGO_BRAKE_MAX_MPS2,
+        sv_brake_mps2: float = SV_BRAKE_MAX_MPS2,
+    ):
+        self.road = road
+        self.literal_sd = literal_sd
+        self.d_acc_m = d_acc_m
+        self.eps_s_m = eps_s_m
+        self.grouped = grouped_rule_mapping
+        self.hold_lane_change = hold_lane_change
+        self.brake_while_changing = brake_while_changing
+        self.standstill_gap_m = standstill_gap_m
+        self.straddle_grouping = straddle_grouping
+        self.reaction_s, self.ego_brake, self.sv_brake = reaction_s, ego_brake_mps2, sv_brake_mps2
+        self.rm = highway_reward_machine()
+        self.target_lane: torch.Tensor | None = None  # (B,) long global T*; -1: not yet known
+        self._query: tuple[torch.Tensor, torch.Tensor] | None = None
+        self.last: SafetyStep | None = None
+
+    # ------------------------------------------------------------------ episodes
+    def reset(self, mask: torch.Tensor | None = None) -> None:
+        """Forget the target lane of the envs where mask (B,) is True (all if None); the next observe()
+        starts them in lane keeping of their current lane."""
+        if mask is None or self.target_lane is None:
+            self.target_lane = None
+            self.last = None
+            return
+        self.target_lane = torch.where(mask.bool(), torch.full_like(self.target_lane, NO_LANE), self.target_lane)
+
+    # ------------------------------------------------------------------ observe
+    def observe(self, world) -> SafetyStep:
+        """Run the rule machinery on the world's current state; returns (and keeps) a SafetyStep."""
+        road = self.road
+        if self._query is None or self.target_lane is None:
+            probe = world.neighbours(*self._probe_lanes(world))
+        else:
+            probe = world.neighbours(*self._query)
+        batch = probe.ego_x.shape[0]
+        ego_lane = probe.ego_lane.long()
+        target = self.target_lane if self.target_lane is not None else torch.full_like(ego_lane, NO_LANE)
+        # a target that is unknown, not a neighbour any more or no longer reachable falls back to the ego lane
+        reachable = (target == ego_lane) | crossing_allowed(road, ego_lane, target, probe.ego_x)
+        target = torch.where(reachable & lane_exists(road, target, probe.ego_x), target, ego_lane)
+        self.target_lane = target
+        ids: IdMapping = id_mapping(road, probe.ego_x, ego_lane, target)
+        snap = self._snapshot(world, probe, ids.primary)
+        primary = self._model_step(snap, ids.primary, target)
+        if bool(ids.two_models.any()):
+            snap_b = world.neighbours(ids.second.current_lane, ids.second.adjacent_lane)
+            second = self._model_step(snap_b, ids.second, target)
+        else:
+            second = primary
+        self._query = (ids.primary.current_lane, ids.primary.adjacent_lane)
+        assert primary.obs.shape[0] == batch
+        self.last = SafetyStep(primary, second, ids.two_models, snap)
+        return self.last
+
+    def _probe_lanes(self, world) -> tuple[torch.Tensor, torch.Tensor]:
+        """Lanes for a first query; only the ego fields of its answer are used before the real query."""
+        lane = getattr(world, "ego_lane", None)
+        if isinstance(lane, torch.Tensor):
+            return lane.long(), torch.full_like(lane.long(), NO_LANE)
+        if self.target_lane is not None:
+            return self.target_lane.clamp(min=0), torch.full_like(self.target_lane, NO_LANE)
+        n = getattr(world, "num_envs", None)
+        if isinstance(n, int):
+            zero = torch.zeros(n, dtype=torch.long, device=getattr(world, "device", None))
+            return zero, torch.full_like(zero, NO_LANE)
+        raise ValueError("the first observe() needs world.ego_lane (B,) or world.num_envs to size the batch")
+
+    @staticmethod
+    def _snapshot(world, probe: Snapshot, lanes: LaneModel) -> Snapshot:
+        same = torch.equal(probe.current_lane.long(), lanes.current_lane) and torch.equal(
+            probe.adjacent_lane.long(), lanes.adjacent_lane
+        )
+        return probe if same else world.neighbours(lanes.current_lane, lanes.adjacent_lane)
+
+    def _model_step(self, snap: Snapshot, lanes: LaneModel, target_global: torch.Tensor) -> ModelStep:
+        w = self.road.lane_width_m if hasattr(self.road, "lane_width_m") else LANE_WIDTH_M
+        veh = fill_defaults(snap, lanes.c_id, lanes.default_adjacent)
+        ego_x, ego_vx = snap.ego_x, snap.ego_vx
+        front = torch.tensor(FRONT_SLOTS, device=ego_x.device)
+        dx = veh.x - ego_x[:, None]
+        gaps = torch.where(front, dx, -dx) - VEHICLE_LENGTH_M
+        # the SD rule treats cars as points (collision iff gap <= 0); keep a standstill margin for rotated
+        # boxes (a 2 m wide car at 0.1 rad reaches 0.1 m further) and the controller's discrete steps
+        r_sv = rule_indicator(
+            gaps - self.standstill_gap_m, ego_vx[:, None], veh.vx, front=front, reaction_s=self.reaction_s, ego_brake=self.ego_brake,
+            other_brake=self.sv_brake, literal=self.literal_sd,
+        )
+        base_y = lanes.base_lane.to(ego_x.dtype) * w
+        ego_y_local = snap.ego_y - base_y
+        sv_y_local = veh.y - base_y[:, None]
+        m_l_ego = near_boundary(ego_y_local, snap.ego_heading, lane_width_m=w)
+        m_l_sv = near_boundary(sv_y_local, veh.heading, lane_width_m=w) & ~veh.virtual
+        _, r_star = rule_mapping(r_sv, m_l_ego, m_l_sv, dx, eps_s_m=self.eps_s_m, grouped=self.grouped)
+        if self.straddle_grouping:
+            r_star = straddle_grouping(r_star, m_l_ego)
+        mask = safe_action_mask_from(r_star)
+        t_id = (target_global - lanes.base_lane).clamp(0, 1)
+        d_vl = (ego_y_local - t_id.to(ego_x.dtype) * w).abs()
+        v_star = desired_speed(gaps[:, 0], veh.vx[:, 0], r_star, d_acc_m=self.d_acc_m)
+        props = HighwayPropositions(m_l_ego, d_vl, r_star, ego_vx, v_star, w)
+        # the highway RM is state-based (δ_u ignores u_t), so the previous state need not be carried
+        u, r_rm = self.rm.step(self.rm.initial(ego_x.shape[0], ego_x.device), props)
+        obs = build_observation(
+            ego_progress=ego_progress_feature(self.road, ego_x),
+            ego_y_local_m=ego_y_local,
+            ego_vx_mps=ego_vx,
+            ego_vy_mps=snap.ego_vy,
+            ego_heading=snap.ego_heading,
+            sv_dx_m=dx,
+            sv_y_local_m=sv_y_local,
+            sv_vx_mps=veh.vx,
+            sv_vy_mps=veh.vy,
+            sv_heading=veh.heading,
+            c_id=lanes.c_id,
+            m_l=m_l_ego,
+            t_id=t_id,
+            v_star_mps=v_star,
+            r_star=r_star,
+            rm_state=u,
+            lane_width_m=w,
+        )
+        return ModelStep(obs, mask, u, r_rm, r_sv, r_star, m_l_ego, t_id, v_star, speed_ratio(ego_vx, v_star),
+                         gaps, veh, lanes)
+
+    # ------------------------------------------------------------------ act
+    def act(self, action: torch.Tensor, use_second: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Action and control mapping (Eqs. 34-35): (target_lane (B,) long global, target_speed (B,) m/s).
+
+        action (B,) long index into ACTIONS, chosen on the model given by use_second (B,) bool (multi-lane).
+        A LaneChange whose target cannot be reached here (a barrier, the off-ramp, a missing lane) keeps the
+        lane. The target speed is relative to the speed along the heading, hypot(v_x, v_y), which is what the
+        ego's speed controller tracks, so an Idle during a lane change does not brake.
+        """
+        if self.last is None or self.target_lane is None:
+            raise RuntimeError("call observe(world) before act(action)")
+        m = self.last.select(use_second)
+        snap = self.last.snapshot
+        veh = m.vehicles
+        dx3 = snap.ego_x - veh.x[:, 2]
+        dx4 = snap.ego_x - veh.x[:, 3]
+        previous = None
+        if self.hold_lane_change:
+            # hold a lane change under way only while the target lane is still safe (R*2 ∧ R*4); otherwise
+            # Faster/Idle/Slower fall back to the literal Eq. 34 (T* = C_ID) and the change is aborted
+            previous = (self.target_lane - m.lanes.base_lane).clamp(0, 1)
+            still_safe = m.r_star[:, 1] & m.r_star[:, 3]
+            previous = torch.where(still_safe, previous, m.lanes.c_id.long())
+        t_local = target_lane_local(
+            action, m.lanes.c_id, m.m_l_ego, m.r_star[:, 2], m.r_star[:, 3], dx3, dx4, previous_target=previous
+        )
+        lane = m.lanes.base_lane + t_local
+        ego_lane = snap.ego_lane.long()
+        ok = (lane == ego_lane) | crossing_allowed(self.road, ego_lane, lane, snap.ego_x)
+        lane = torch.where(ok, lane, ego_lane)
+        self.target_lane = lane
+        speed = target_speed(action, torch.hypot(snap.ego_vx, snap.ego_vy))
+        # Table 1 allows LaneChange while R*_SV1 = 0 (rows 9, 13), but the lateral move takes ~2.5 s during
+        # which the ego is still behind SV1: it changes lanes braking as Slower would (docs/paper-notes.md).
+        if self.brake_while_changing:
+            brake = (action == LANE_CHANGE) & ~m.r_star[:, 0]
+            speed = torch.where(brake, target_speed(torch.full_like(action, SLOWER), torch.hypot(snap.ego_vx, snap.ego_vy)), speed)
+        return lane, speed

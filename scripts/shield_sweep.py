@@ -1,0 +1,62 @@
+"""How safe is the shield on its own? Random actions (ExG's distribution) through the MoE gate, every scenario
+and level, nominal and adversarial: collision-free rate and lane changes per episode. Prints a Markdown table.
+
+    python scripts/shield_sweep.py --episodes 256 --levels A,C,F
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import torch
+
+from highway_srl.agents.gating import explore_gate
+from highway_srl.constants import SCENARIOS
+from highway_srl.rules import SafetyLayer
+from highway_srl.sim import World
+
+
+def sweep(scenario: str, level: str, adversarial: bool, episodes: int, seed: int) -> dict:
+    world = World(scenario, level, adversarial, episodes, "cpu", seed)
+    layer = SafetyLayer(world.road)
+    gen = torch.Generator().manual_seed(seed)
+    step = layer.observe(world)
+    alive = torch.ones(episodes, dtype=torch.bool)
+    collided = torch.zeros(episodes, dtype=torch.bool)
+    start_lane = world.ego_lane.clone()
+    changed = torch.zeros(episodes, dtype=torch.bool)
+    for _ in range(world.max_steps):
+        action, _ = explore_gate(step.primary.mask, gen)
+        lane, speed = layer.act(action)
+        events = world.step(lane, speed)
+        step = layer.observe(world)
+        collided |= alive & events.collision
+        changed |= alive & (world.ego_lane != start_lane)
+        alive &= ~(events.terminated | events.truncated)
+        if not bool(alive.any()):
+            break
+    return {"collision_free": float((~collided).float().mean()), "changed_lane": float(changed.float().mean())}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__)
+    p.add_argument("--episodes", type=int, default=256)
+    p.add_argument("--levels", default="A,C,F")
+    p.add_argument("--seed", type=int, default=7)
+    args = p.parse_args()
+    t0 = time.time()
+    print("| scenario | mode | level | episodes | collision-free | episodes with a lane change |")
+    print("|---|---|---|---|---|---|")
+    for scenario in SCENARIOS:
+        for adversarial in (False, True):
+            for level in args.levels.split(","):
+                r = sweep(scenario, level, adversarial, args.episodes, args.seed)
+                mode = "adversarial" if adversarial else "nominal"
+                print(f"| {scenario} | {mode} | {level} | {args.episodes} | {r['collision_free']:.1%} | {r['changed_lane']:.0%} |",
+                      flush=True)
+    print(f"\n{time.time() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

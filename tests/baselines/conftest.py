@@ -1,0 +1,56 @@
+import pytest
+import torch
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    # tiny networks on a busy 2-core machine: a second intra-op thread only adds OpenMP waits (~10x slower)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture
+def short_config():
+    """1600 steps of two-lane level A, 8 envs (tests/training uses 2400 for MoE-RM-SRL)."""
+    from highway_srl.agents.dqn import DQNConfig
+    from highway_srl.agents.trainer import TrainConfig
+
+    def make(method: str, steps: int = 1600, **kw) -> TrainConfig:
+        dqn = DQNConfig(total_steps=steps, learning_starts=300, target_update_interval=200, exploration_fraction=0.3,
+                        buffer_capacity=max(steps, 2048))  # never full here; the default would allocate GBs for 11 experts
+        return TrainConfig(method=method, scenario="two-lane", traffic="A", steps=steps, envs=8, updates_per_step=2,
+                           dqn=dqn, **kw)
+
+    return make
+
+
+class _HalfRandom:
+    """The method with ε = 1 in the first half of the envs and ε = 0 in the second (same traffic in both)."""
+
+    def __init__(self, method, generator):
+        self.method, self.gen = method, generator
+
+    def make_layer(self, road):
+        return self.method.make_layer(road)
+
+    def decide(self, learner, step, explore, generator):
+        b = explore.shape[0]
+        return self.method.decide(learner, step, torch.arange(b) < b // 2, self.gen)
+
+
+@pytest.fixture
+def greedy_vs_random():
+    """deploy(method, learner, episodes) -> (greedy results, random results) of run_episodes on two-lane
+    level A: 'random' is the same method exploring with ε = 1 (through its own shield, if it has one)."""
+    from highway_srl.experiments.evaluate import run_episodes
+    from highway_srl.sim import World
+
+    def deploy(method, learner, episodes: int = 16, traffic: str = "A"):
+        seeds = [10**9 + i for i in range(episodes)] * 2
+        world = World("two-lane", traffic, num_envs=2 * episodes, seed=seeds)
+        out = run_episodes(world, _HalfRandom(method, torch.Generator().manual_seed(0)), learner)
+        return {k: v[episodes:] for k, v in out.items()}, {k: v[:episodes] for k, v in out.items()}
+
+    return deploy

@@ -1,0 +1,150 @@
+"""SafetyLayer (Algorithm 1 lines 6-9 with §3.3) on hand-built worlds."""
+
+import pytest
+import torch
+
+from highway_srl.rules import ACTIONS, SafetyLayer, choose_second, observation_ranges
+from highway_srl.rules.reward_machine import U2, U3, U4
+from highway_srl.rules.safe_actions import FASTER, IDLE, LANE_CHANGE, SLOWER
+from highway_srl.sim.road import make_road
+
+W = 3.5
+
+
+def in_ranges(obs):
+    lo, hi = observation_ranges().unbind(1)
+    return bool(torch.isfinite(obs).all() and ((obs >= lo - 1e-5) & (obs <= hi + 1e-5)).all())
+
+
+def test_close_slow_leader_allows_only_slower_and_lane_change_table1_row9(hand_world):
+    # ego lane 0 at 10 m/s, SV1 8 m ahead (gap 3 m) at 5 m/s, nothing else: R* = (0, 1, 1, 1)
+    world = hand_world(make_road("two-lane"), [{"ego": (0.0, 0.0, 10.0, 0.0), "svs": [(8.0, 0.0, 5.0, 0.0)]}])
+    layer = SafetyLayer(world.road)
+    step = layer.observe(world)
+    p = step.primary
+    assert p.r_star[0].tolist() == [False, True, True, True]
+    assert dict(zip(ACTIONS, p.mask[0].tolist())) == {"Faster": False, "Idle": False, "Slower": True,
+                                                     "LaneChange": True}
+    assert p.vehicles.virtual[0].tolist() == [False, True, True, True]
+    assert int(p.rm_state[0]) == U2 and float(p.r_rm[0]) == 0.0
+    assert float(p.v_star[0]) == 5.0  # SV1 within d_ACC and a rule fails
+    assert p.obs.shape == (1, 37) and in_ranges(p.obs)
+
+
+def test_lane_change_sets_target_and_rm_enters_lane_change_mode(hand_world):
+    world = hand_world(make_road("two-lane"), [{"ego": (0.0, 0.0, 10.0, 0.0), "svs": [(8.0, 0.0, 5.0, 0.0)]}])
+    layer = SafetyLayer(world.road, hold_lane_change=False)
+    layer.observe(world)
+    lane, speed = layer.act(torch.tensor([LANE_CHANGE]))
+    # R*_SV1 = 0: the ego changes lanes braking as Slower would (brake_while_changing, docs/notes-lead.md)
+    assert lane.tolist() == [1] and speed.tolist() == [9.25]
+    p = layer.observe(world).primary  # the ego has not moved: d_VL = 3.5 >= w_L/2, R1 false -> u4
+    assert int(p.t_id[0]) == 1 and int(p.rm_state[0]) == U4
+    # literal Eq. 34: Idle resets the target to the current lane (the change is aborted)
+    lane, _ = layer.act(torch.tensor([IDLE]))
+    assert lane.tolist() == [0]
+
+
+def test_literal_lane_change_keeps_the_speed_when_brake_while_changing_is_off(hand_world):
+    world = hand_world(make_road("two-lane"), [{"ego": (0.0, 0.0, 10.0, 0.0), "svs": [(8.0, 0.0, 5.0, 0.0)]}])
+    layer = SafetyLayer(world.road, brake_while_changing=False)
+    layer.observe(world)
+    lane, speed = layer.act(torch.tensor([LANE_CHANGE]))
+    assert lane.tolist() == [1] and speed.tolist() == [10.0]
+
+
+def test_hold_lane_change_keeps_the_target_on_keep_actions(hand_world):
+    world = hand_world(make_road("two-lane"), [{"ego": (0.0, 0.0, 8.0, 0.0), "svs": []}])
+    layer = SafetyLayer(world.road, hold_lane_change=True)
+    layer.observe(world)
+    layer.act(torch.tensor([LANE_CHANGE]))
+    p = layer.observe(world).primary
+    assert int(p.rm_state[0]) == U3  # all rules hold (default vehicles), not aligned with the target
+    lane, speed = layer.act(torch.tensor([FASTER]))
+    assert lane.tolist() == [1] and abs(float(speed[0]) - 8.4375) < 1e-5
+
+
+def test_multi_lane_middle_lane_gives_two_models_and_a_selector(hand_world):
+    scenes = [{"ego": (0.0, W, 8.0, 0.0), "svs": [(30.0, 0.0, 6.0, 0.0), (-30.0, 2 * W, 6.0, 0.0)]},
+              {"ego": (0.0, 0.0, 8.0, 0.0), "svs": []}]
+    world = hand_world(make_road("multi-lane"), scenes)
+    layer = SafetyLayer(world.road)
+    step = layer.observe(world)
+    assert step.two_models.tolist() == [True, False]
+    a, b = step.primary, step.second
+    assert a.lanes.c_id.tolist()[0] == 1 and b.lanes.c_id.tolist()[0] == 0
+    assert b.lanes.adjacent_lane.tolist()[0] == 2
+    assert float(a.vehicles.x[0, 1]) == 30.0 and float(b.vehicles.x[0, 3]) == -30.0  # SV2 in A, SV4 in B
+    use_b = choose_second(torch.tensor([1.0, 1.0]), torch.tensor([2.0, 2.0]), step.two_models)
+    assert use_b.tolist() == [True, False]
+    lane, _ = layer.act(torch.tensor([LANE_CHANGE, LANE_CHANGE]), use_b)
+    assert lane.tolist() == [2, 1]  # model B sends the middle-lane ego right; env 1 goes 0 -> 1
+    # while the change is under way there is one model, the pair holding the target
+    step = layer.observe(world)
+    assert step.two_models.tolist() == [False, False] and step.primary.lanes.base_lane.tolist() == [1, 0]
+
+
+def test_merge_on_ramp_uses_default_adjacent_vehicles_and_cannot_change_lanes(hand_world):
+    road = make_road("merge")
+    scenes = [{"ego": (30.0, 2 * W, 8.0, 0.0), "svs": [(35.0, W, 8.0, 0.0)]},  # on-ramp, SV beyond the barrier
+              {"ego": (100.0, 2 * W, 8.0, 0.0), "svs": [(105.0, W, 8.0, 0.0)]}]  # merging zone
+    world = hand_world(road, scenes)
+    layer = SafetyLayer(road)
+    p = layer.observe(world).primary
+    assert world.queries[-1] == ([2, 2], [-1, 1])
+    assert p.vehicles.virtual[0].tolist() == [True, True, True, True]
+    assert p.vehicles.virtual[1].tolist() == [True, False, True, True]
+    assert p.r_star[1, 1].item() is False  # SV2 overlaps the ego longitudinally
+    assert p.lanes.c_id.tolist() == [1, 1] and p.lanes.base_lane.tolist() == [1, 1]
+    lane, _ = layer.act(torch.tensor([LANE_CHANGE, SLOWER]))
+    assert lane.tolist() == [2, 2]  # the barrier keeps the on-ramp ego in its lane
+
+
+def test_exit_diverging_zone_and_off_ramp_queries(hand_world):
+    road = make_road("exit")
+    scenes = [{"ego": (150.0, W, 8.0, 0.0), "svs": []}, {"ego": (250.0, 2 * W, 8.0, 0.0), "svs": []}]
+    world = hand_world(road, scenes)
+    layer = SafetyLayer(road)
+    p = layer.observe(world).primary
+    assert world.queries[-1] == ([1, 2], [2, -1])
+    assert p.lanes.c_id.tolist() == [0, 1] and p.lanes.default_adjacent.tolist() == [False, True]
+    lane, _ = layer.act(torch.tensor([LANE_CHANGE, LANE_CHANGE]))
+    assert lane.tolist() == [2, 2]  # diverging zone: to the off-ramp; off-ramp: no way back
+
+
+def test_batched_step_equals_one_env_at_a_time(hand_world):
+    road = make_road("two-lane")
+    scenes = [
+        {"ego": (0.0, 0.0, 10.0, 0.0), "svs": [(8.0, 0.0, 5.0, 0.0), (20.0, W, 9.0, 0.0)]},
+        {"ego": (50.0, 1.2, 6.0, 0.1), "svs": [(47.0, W, 9.0, 0.0), (80.0, 0.0, 3.0, 0.0)]},
+        {"ego": (10.0, W, 3.0, 0.0), "svs": [(0.0, W, 9.0, 0.0), (12.0, 1.6, 4.0, -0.1)]},
+    ]
+    batch = SafetyLayer(road).observe(hand_world(road, scenes))
+    actions = torch.tensor([LANE_CHANGE, IDLE, FASTER])
+    layer = SafetyLayer(road)
+    layer.observe(hand_world(road, scenes))
+    lanes, speeds = layer.act(actions)
+    for b, scene in enumerate(scenes):
+        one_layer = SafetyLayer(road)
+        one = one_layer.observe(hand_world(road, [scene])).primary
+        assert torch.allclose(one.obs[0], batch.primary.obs[b], atol=1e-6)
+        assert torch.equal(one.mask[0], batch.primary.mask[b])
+        assert int(one.rm_state[0]) == int(batch.primary.rm_state[b])
+        lane, speed = one_layer.act(actions[b:b + 1])
+        assert int(lane[0]) == int(lanes[b]) and float(speed[0]) == pytest.approx(float(speeds[b]))
+
+
+def test_reset_forgets_the_target_of_reset_envs_only(hand_world):
+    road = make_road("two-lane")
+    world = hand_world(road, [{"ego": (0.0, 0.0, 8.0, 0.0), "svs": []}] * 2)
+    layer = SafetyLayer(road, hold_lane_change=True)
+    layer.observe(world)
+    layer.act(torch.tensor([LANE_CHANGE, LANE_CHANGE]))
+    layer.reset(torch.tensor([True, False]))
+    step = layer.observe(world)
+    assert step.primary.t_id.tolist() == [0, 1]
+
+
+def test_act_before_observe_is_an_error():
+    with pytest.raises(RuntimeError, match="observe"):
+        SafetyLayer(make_road("two-lane")).act(torch.tensor([0]))
