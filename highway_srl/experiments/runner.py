@@ -1,0 +1,326 @@
+"""Run the study's jobs: in local worker processes or on a Ray cluster; resume where an earlier run stopped.
+
+Layout of a study folder (`--out`):
+  study.json                 budget, machine, provenance, every job's status, one entry per invocation
+  runs/SCENE/VARIANT/        a training run folder (highway_srl.experiments.train) + eval.json + job.json
+  tables/, figures/          the artefacts (highway_srl.experiments.tables / figures)
+  report.md, report.html
+
+A job is done when its folder holds metrics.json and eval.json; done jobs are never run again. A job whose
+training was interrupted resumes from its last checkpoint (train_run(resume=True)); one that was trained
+but not evaluated is only evaluated. Jobs whose method is not registered yet are recorded as
+'unavailable' with the reason, failures as 'failed' with the error; both are tried again next time.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import socket
+import time
+import traceback
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Callable
+
+from highway_srl.experiments.runs import provenance, read_json, write_json
+from highway_srl.experiments.study import Budget, Job, get_budget, job_availability, study_jobs
+
+BACKENDS = ("local", "ray")
+STUDY_FILE = "study.json"
+EVAL_FILE = "eval.json"
+JOB_FILE = "job.json"
+RESULT_FILES = ("config.json", "metrics.json", EVAL_FILE, "episodes.jsonl", JOB_FILE)  # what tables read
+RAY_JOBS_PER_GPU = 4  # with --device cuda on Ray, each job asks for 1/4 of a GPU
+
+
+def now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def job_done(root: Path, job: Job) -> bool:
+    folder = root / job.folder
+    return (folder / "metrics.json").exists() and (folder / EVAL_FILE).exists()
+
+
+# ----------------------------------------------------------------------------------------------- one job
+def run_job(job_dict: dict, root: str, device: str = "cpu", threads: int = 1, return_files: bool = False) -> dict:
+    """Train (or resume) and evaluate one job; never raises. Runs in a worker process or a Ray task.
+
+    Returns {"status": "done" | "failed", "message", "wall_s", "host", "trained", "evaluated"} and, with
+    return_files, the text of the result files so a driver without the worker's file system can keep them.
+    """
+    import torch
+
+    torch.set_num_threads(max(1, threads))
+    job = Job.from_dict(job_dict)
+    folder = Path(root) / job.folder
+    started = time.perf_counter()
+    result = {"status": "done", "message": None, "host": socket.gethostname(), "trained": False, "evaluated": False}
+    try:
+        from highway_srl.experiments.evaluate import evaluate_run
+        from highway_srl.experiments.train import train_run
+
+        if not (folder / "metrics.json").exists():
+            resume = (folder / "config.json").exists()
+            train_run(job.train_config(device), folder, resume=resume, checkpoint_every=job.checkpoint_every,
+                      progress=False)
+            result["trained"] = True
+        if not (folder / EVAL_FILE).exists():
+            evaluate_run(folder, traffics=list(job.eval_levels), episodes=job.eval_episodes, device=device,
+                         out=folder / EVAL_FILE)
+            result["evaluated"] = True
+    except Exception as err:  # noqa: BLE001 - a failing job is recorded, the study goes on
+        result.update(status="failed", message=f"{type(err).__name__}: {err}",
+                      traceback=traceback.format_exc(limit=8))
+    result["wall_s"] = round(time.perf_counter() - started, 2)
+    result["finished"] = now()
+    try:
+        write_json(folder / JOB_FILE, {"job": job.to_dict(), **result, **provenance()})
+    except OSError as err:
+        result.update(status="failed", message=f"cannot write {folder / JOB_FILE}: {err}")
+    if return_files:
+        result["files"] = {name: (folder / name).read_text() for name in RESULT_FILES if (folder / name).exists()}
+    return result
+
+
+Work = Callable[..., dict]  # run_job's signature; tests pass cheaper stand-ins
+
+
+# ----------------------------------------------------------------------------------------------- backends
+def run_local(jobs: list[Job], root: Path, device: str, workers: int, on_result, work: Work = run_job) -> None:
+    """`workers` worker processes (spawned, reused across jobs); one job runs inline when workers == 1."""
+    threads = max(1, (os.cpu_count() or 1) // max(1, workers))
+    if workers <= 1 or len(jobs) <= 1:
+        for job in jobs:
+            on_result(job, work(job.to_dict(), str(root), device, threads))
+        return
+    import multiprocessing as mp
+
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=mp.get_context("spawn")) as pool:
+        futures = {pool.submit(work, job.to_dict(), str(root), device, threads): job for job in jobs}
+        try:
+            for fut in as_completed(futures):
+                job = futures[fut]
+                try:
+                    result = fut.result()
+                except BrokenProcessPool:
+                    result = {"status": "failed", "message": "a worker process died (killed, or out of memory?)",
+                              "wall_s": None}
+                except Exception as err:  # noqa: BLE001 - e.g. the job could not be sent to the worker
+                    result = {"status": "failed", "message": f"{type(err).__name__}: {err}", "wall_s": None}
+                on_result(job, result)
+        except BaseException:
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+
+
+def run_ray(jobs: list[Job], root: Path, device: str, on_result, address: str | None = None,
+            num_cpus: int | None = None, work: Work = run_job) -> None:
+    """One Ray task per job (1 CPU; 1/4 GPU with --device cuda). Uses an already initialised Ray, else
+    connects to `address`, else starts a local one with `num_cpus`. Workers write to the same path (a shared
+    file system); the tables' files also travel back with each result, so a cluster without one works too
+    (model weights and resume checkpoints then stay on the worker)."""
+    try:
+        import ray
+    except ImportError:
+        raise ValueError("the ray backend needs Ray: pip install 'highway-srl[ray]'") from None
+    started_here = not ray.is_initialized()
+    if started_here:
+        kwargs = {"address": address} if address else {"num_cpus": num_cpus}
+        ray.init(include_dashboard=False, ignore_reinit_error=True, log_to_driver=False, **kwargs)
+    try:
+        gpus = 1.0 / RAY_JOBS_PER_GPU if device.startswith("cuda") else 0
+        task = ray.remote(work).options(num_cpus=1, num_gpus=gpus, max_retries=0)
+        refs = {task.remote(job.to_dict(), str(root), device, 1, True): job for job in jobs}
+        while refs:
+            ready, _ = ray.wait(list(refs), num_returns=1)
+            for ref in ready:
+                job = refs.pop(ref)
+                try:
+                    result = ray.get(ref)
+                except Exception as err:  # noqa: BLE001 - a dead worker or node
+                    result = {"status": "failed", "message": f"ray task failed: {type(err).__name__}: {err}",
+                              "wall_s": None}
+                _keep_files(root / job.folder, result.pop("files", None) or {})
+                on_result(job, result)
+    finally:
+        if started_here:
+            ray.shutdown()
+
+
+def _keep_files(folder: Path, files: dict[str, str]) -> None:
+    for name, text in files.items():
+        path = folder / name
+        if not path.exists():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_name(f".{name}.tmp")
+            tmp.write_text(text)
+            os.replace(tmp, path)
+
+
+# ----------------------------------------------------------------------------------------------- the study
+def machine(device: str = "cpu") -> dict:
+    import torch
+
+    info = {"host": socket.gethostname(), "platform": platform.platform(), "cpu": _cpu_model(),
+            "cores": os.cpu_count(), "python": platform.python_version(), "torch": torch.__version__,
+            "device": device}
+    if device.startswith("cuda") and torch.cuda.is_available():
+        info["gpu"] = torch.cuda.get_device_name(0)
+    return info
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def open_study(out: Path, budget: Budget) -> dict:
+    """The study.json of `out`, created if new; one-line errors for a folder that holds something else."""
+    path = out / STUDY_FILE
+    if path.exists():
+        try:
+            state = read_json(path)
+        except ValueError as err:
+            raise ValueError(f"{path} is damaged ({err}); move it away to start the study afresh") from None
+        if state.get("budget") != budget.name:
+            raise ValueError(f"--out {str(out)!r} holds a study of budget {state.get('budget')!r}, not "
+                             f"{budget.name!r}; choose another --out or --budget {state.get('budget')}")
+        changed = sorted(k for k, v in _settings(budget).items()
+                         if _settings_of(state.get("budget_config", {})).get(k) != v)
+        if changed:
+            raise ValueError(f"--out {str(out)!r} holds a {budget.name} study made with other settings "
+                             f"({', '.join(changed)} changed since); choose another --out")
+        return state
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise ValueError(f"--out {str(out)!r} exists and holds no study ({STUDY_FILE}); choose an empty or new folder")
+    return {"kind": "highway-srl study", "budget": budget.name, "budget_config": vars(budget).copy(),
+            "created": now(), "invocations": [], "jobs": {}, **provenance()}
+
+
+def _settings(budget: Budget) -> dict:
+    """The budget's numbers that shape the results (not its description), JSON-comparable."""
+    return _settings_of(vars(budget))
+
+
+def _settings_of(config: dict) -> dict:
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in config.items()
+            if k not in ("name", "expected_cost")}
+
+
+def reproduce(budget: str, out: str | Path, jobs: int | None = None, backend: str = "local",
+              address: str | None = None, device: str = "cpu", methods: tuple[str, ...] | None = None,
+              work: Work = run_job, log: Callable[[str], None] = print, report: bool = True) -> dict:
+    """Run every pending job of the study at `budget` in `out`, then write the tables, figures and report.
+
+    Returns the final study.json content. `work` runs one job (run_job; tests pass stand-ins).
+    """
+    from highway_srl.experiments.study import default_jobs
+
+    b = get_budget(budget)
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; choose one of {', '.join(BACKENDS)}")
+    if address and backend != "ray":
+        raise ValueError("--address is for --backend ray")
+    if device not in ("cpu", "cuda") and not device.startswith("cuda:"):
+        raise ValueError(f"unknown device {device!r}; choose cpu or cuda")
+    workers = jobs if jobs is not None else default_jobs()
+    if workers < 1:
+        raise ValueError(f"--jobs must be a positive integer, got {workers}")
+    if backend == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            raise ValueError("the ray backend needs Ray: pip install 'highway-srl[ray]'") from None
+    all_jobs = study_jobs(b, methods)
+    out = Path(out)
+    state = open_study(out, b)
+    out.mkdir(parents=True, exist_ok=True)
+    state["methods"] = list(methods) if methods else None
+    state["machine"] = machine(device)
+    state.update(provenance())
+    invocation = {"started": now(), "backend": backend, "jobs": workers, "device": device, "address": address,
+                  "host": state["machine"]["host"], **provenance(), "ran": 0, "skipped_done": 0, "finished": None,
+                  "wall_s": None}
+    state["invocations"].append(invocation)
+    t0 = time.perf_counter()
+
+    pending = []
+    for job in all_jobs:
+        entry = state["jobs"].setdefault(job.id, {})
+        entry["job"] = job.to_dict()
+        if job_done(out, job):
+            if entry.get("status") != "done":
+                entry.update(_from_job_file(out, job))
+                entry["status"] = "done"
+            invocation["skipped_done"] += 1
+            continue
+        why = job_availability(job)
+        if why is not None:
+            entry.update(status="unavailable", message=why, wall_s=None, finished=now())
+            continue
+        entry.update(status="pending", message=None)
+        pending.append(job)
+    write_json(out / STUDY_FILE, state)
+    unavailable = [j for j in all_jobs if state["jobs"][j.id]["status"] == "unavailable"]
+    log(f"study {b.name} in {out}: {len(all_jobs)} jobs, {invocation['skipped_done']} done already, "
+        f"{len(pending)} to run, {len(unavailable)} unavailable (method not registered yet)"
+        + (f"; {backend} backend, {workers} at a time (progress: {out}/runs/SCENE/VARIANT/scalars.csv)"
+           if pending else ""))
+    counter = {"n": 0}
+
+    def on_result(job: Job, result: dict) -> None:
+        counter["n"] += 1
+        entry = state["jobs"][job.id]
+        entry.update(status=result.get("status", "failed"), message=result.get("message"),
+                     wall_s=result.get("wall_s"), finished=result.get("finished", now()), host=result.get("host"))
+        invocation["ran"] += 1
+        invocation["wall_s"] = round(time.perf_counter() - t0, 2)
+        write_json(out / STUDY_FILE, state)
+        what = f"done in {result['wall_s']:.0f} s" if entry["status"] == "done" else f"FAILED: {entry['message']}"
+        log(f"[{counter['n']}/{len(pending)}] {job.id}: {what}")
+
+    try:
+        if pending:
+            if backend == "local":
+                run_local(pending, out, device, workers, on_result, work)
+            else:
+                run_ray(pending, out, device, on_result, address=address, num_cpus=workers, work=work)
+    finally:
+        invocation["finished"] = now()
+        invocation["wall_s"] = round(time.perf_counter() - t0, 2)
+        write_json(out / STUDY_FILE, state)
+    counts: dict[str, int] = {}
+    for job in all_jobs:
+        counts[state["jobs"][job.id]["status"]] = counts.get(state["jobs"][job.id]["status"], 0) + 1
+    log(f"jobs: {', '.join(f'{n} {s}' for s, n in sorted(counts.items()))}"
+        + ("; run the same command again to retry the others" if set(counts) - {"done"} else ""))
+    if report:
+        from highway_srl.experiments.report import write_report
+
+        t1 = time.perf_counter()
+        path = write_report(out)
+        invocation["report_s"] = round(time.perf_counter() - t1, 2)
+        invocation["wall_s"] = round(time.perf_counter() - t0, 2)
+        write_json(out / STUDY_FILE, state)
+        log(f"report: {path}")
+    return state
+
+
+def _from_job_file(out: Path, job: Job) -> dict:
+    path = out / job.folder / JOB_FILE
+    if path.exists():
+        try:
+            saved = read_json(path)
+            return {k: saved.get(k) for k in ("message", "wall_s", "finished", "host")}
+        except ValueError:
+            pass
+    return {"message": None, "wall_s": None, "finished": None, "host": None}

@@ -1,0 +1,504 @@
+"""The study's tables, from the jobs' run folders: each written as CSV (raw numbers) and Markdown.
+
+Every number is read from files the training and evaluation code wrote (metrics.json, eval.json,
+episodes.jsonl); nothing is typed in here except the paper's own numbers (paper_numbers.py), shown beside
+ours. Spread over runs is the sample standard deviation over seeds (the paper's "10 independent runs");
+C_r, R_r, R_s pool every run's episodes, with the 95% intervals of highway_srl.rules.metrics.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import statistics
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from highway_srl.constants import TRAFFIC_LEVELS
+from highway_srl.experiments import paper_numbers as paper
+from highway_srl.experiments.runs import read_json, read_jsonl
+from highway_srl.experiments.study import (ABLATION_SCENE, ABLATIONS, GROUP1_METHODS, GROUP2_SCENES, GROUP3_SCENES,
+                                           METHOD_LABELS, MULTILANE_SCENES, OURS, SCENES, TABLE5_METHODS,
+                                           TABLE5_SCENES, TRAIN_TRAFFIC, Job)
+
+# --------------------------------------------------------------------------------------------- job results
+
+
+@dataclass
+class Result:
+    """One job of the study as found on disk."""
+
+    job: Job
+    status: str  # done | failed | unavailable | pending
+    message: str | None
+    folder: Path
+    metrics: dict | None = None
+    evaluation: dict | None = None
+
+    @property
+    def done(self) -> bool:
+        return self.status == "done" and self.metrics is not None and self.evaluation is not None
+
+    def train(self) -> dict | None:
+        """T_c, T_r, rise time (means over seeds) and their spread; None if not trained."""
+        if self.metrics is None:
+            return None
+        per_seed = list(self.metrics.get("per_seed", {}).values())
+        out = {"seeds": len(per_seed), "episodes": sum(s.get("episodes") or 0 for s in per_seed),
+               "collisions": sum(s.get("collisions") or 0 for s in per_seed)}
+        for key, name in (("T_c", "T_c"), ("T_r", "T_r"), ("rise_time_steps", "rise_time")):
+            out[name] = self.metrics.get("mean", {}).get(key)
+            out[f"{name}_sd"] = sd([s.get(key) for s in per_seed])
+        return out
+
+    def deploy(self, level: str = TRAIN_TRAFFIC) -> dict | None:
+        """Deployment metrics at one traffic level: pooled values, 95% intervals, spread over runs."""
+        if self.evaluation is None or level not in self.evaluation.get("levels", {}):
+            return None
+        lv = self.evaluation["levels"][level]
+        per_seed = list((lv.get("per_seed") or {}).values())
+        out = {"episodes": lv["episodes"], "runs": max(1, len(per_seed)),
+               "episodes_per_run": self.evaluation.get("episodes_per_level")}
+        for key in ("C_r", "avg_speed", "R_r", "R_s"):
+            if key not in lv:
+                continue
+            out[key], out[f"{key}_low"], out[f"{key}_high"] = lv[key]["value"], lv[key]["low"], lv[key]["high"]
+            out[f"{key}_sd"] = sd([s[key]["value"] for s in per_seed])
+        out["collision_rate"] = 1.0 - out["C_r"]
+        out["collision_rate_sd"] = out["C_r_sd"]
+        return out
+
+    def episodes(self) -> list[dict]:
+        return read_jsonl(self.folder / "episodes.jsonl")
+
+
+class Results:
+    """Every job of a study folder, looked up by (method, scene, options)."""
+
+    def __init__(self, root: Path, state: dict, results: list[Result]):
+        self.root, self.state = root, state
+        self.by_key = {(r.job.method, r.job.scene, r.job.options): r for r in results}
+        self.budget = state.get("budget")
+        self.levels = tuple(state.get("budget_config", {}).get("group1_levels") or TRAFFIC_LEVELS)
+
+    def get(self, method: str, scene: str, options: tuple[str, ...] = ()) -> Result | None:
+        return self.by_key.get((method, scene, tuple(options)))
+
+    def __iter__(self):
+        return iter(self.by_key.values())
+
+
+def load_results(root: str | Path) -> Results:
+    root = Path(root)
+    state = read_json(root / "study.json")
+    results = []
+    for entry in state.get("jobs", {}).values():
+        job = Job.from_dict(entry["job"])
+        folder = root / job.folder
+        res = Result(job, entry.get("status", "pending"), entry.get("message"), folder)
+        if (folder / "metrics.json").exists():
+            res.metrics = read_json(folder / "metrics.json")
+        if (folder / "eval.json").exists():
+            res.evaluation = read_json(folder / "eval.json")
+        if res.metrics is not None and res.evaluation is not None:
+            res.status = "done"
+        results.append(res)
+    return Results(root, state, results)
+
+
+def sd(values) -> float | None:
+    vals = [float(v) for v in values if v is not None and not (isinstance(v, float) and math.isnan(v))]
+    return statistics.stdev(vals) if len(vals) >= 2 else None
+
+
+# --------------------------------------------------------------------------------------------- table type
+
+
+def _fmt(kind: str, value) -> str:
+    if value is None or value == "" or (isinstance(value, float) and math.isnan(value)):
+        return "–"
+    if kind == "pct":
+        return f"{100 * value:.1f}%"
+    if kind == "pp":  # a spread of a rate, in percentage points
+        return f"±{100 * value:.1f}"
+    if kind == "sd":
+        return f"±{value:.2f}"
+    if kind.startswith("f"):
+        return f"{value:.{int(kind[1:])}f}"
+    if kind == "int":
+        return f"{int(value):,}"
+    return str(value)
+
+
+@dataclass
+class Column:
+    key: str
+    header: str
+    kind: str = "text"  # text | int | pct | pp | sd | f<digits>
+    render: Callable[[dict], str] | None = None  # Markdown cell from the whole row, overriding kind
+
+
+@dataclass
+class Table:
+    """Rows of raw values; CSV keeps them raw, Markdown formats them. `display` (optional) is a different
+    Markdown shape of the same numbers (e.g. Table 5 wide, its CSV long)."""
+
+    name: str
+    title: str
+    columns: list[Column]
+    rows: list[dict]
+    notes: list[str] = field(default_factory=list)
+    display: "Table | None" = None
+
+    def csv_text(self) -> str:
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        w.writerow([c.key for c in self.columns])
+        for row in self.rows:
+            w.writerow(["" if row.get(c.key) is None else _csv_value(row.get(c.key)) for c in self.columns])
+        return buf.getvalue()
+
+    def formatted(self) -> tuple[list[str], list[list[str]]]:
+        """Headers and formatted cells of the Markdown shape (`display` if given)."""
+        t = self.display or self
+        cells = [[c.render(row) if c.render else _fmt(c.kind, row.get(c.key)) for c in t.columns] for row in t.rows]
+        return [c.header for c in t.columns], cells
+
+    def markdown(self, heading: bool = True) -> str:
+        headers, cells = self.formatted()
+        lines = [f"## {self.title}", ""] if heading else []
+        lines.append("| " + " | ".join(headers) + " |")
+        lines.append("|" + "|".join("---" for _ in headers) + "|")
+        for row in cells:
+            lines.append("| " + " | ".join(s.replace("|", "\\|") for s in row) + " |")
+        if self.notes:
+            lines += [""] + [f"_{n}_" for n in self.notes]
+        return "\n".join(lines) + "\n"
+
+    def write(self, folder: Path) -> list[Path]:
+        folder.mkdir(parents=True, exist_ok=True)
+        paths = [folder / f"{self.name}.csv", folder / f"{self.name}.md"]
+        _write_text(paths[0], self.csv_text())
+        _write_text(paths[1], self.markdown())
+        return paths
+
+
+def _csv_value(v):
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    return v
+
+
+def _write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+def _status(res: Result | None) -> str:
+    if res is None:
+        return "not in this study"
+    return res.status
+
+
+def _both(kind: str, key: str, paper_key: str) -> Callable[[dict], str]:
+    return lambda row: f"{_fmt(kind, row.get(key))} / {_fmt(kind, row.get(paper_key))}"
+
+
+def _with_sd(kind: str, key: str) -> Callable[[dict], str]:
+    spread = "pp" if kind == "pct" else "sd"
+
+    def render(row: dict) -> str:
+        s = _fmt(kind, row.get(key))
+        if row.get(f"{key}_sd") is not None:
+            s += f" {_fmt(spread, row[f'{key}_sd'])}"
+        return s
+    return render
+
+
+def _with_ci(kind: str, key: str) -> Callable[[dict], str]:
+    def render(row: dict) -> str:
+        if row.get(key) is None:
+            return "–"
+        lo, hi = row.get(f"{key}_low"), row.get(f"{key}_high")
+        inner = kind if kind != "pct" else "pct"
+        return f"{_fmt(kind, row[key])} [{_fmt(inner, lo)}, {_fmt(inner, hi)}]"
+    return render
+
+
+# --------------------------------------------------------------------------------------------- the tables
+
+
+def group1_deployment(results: Results) -> Table:
+    rows = []
+    for m in GROUP1_METHODS:
+        res = results.get(m, "two-lane")
+        if res is None:
+            continue
+        for level in results.levels:
+            d = res.deploy(level) if res.done else None
+            rows.append({"method": METHOD_LABELS[m], "method_key": m, "level": level, "status": _status(res),
+                         **{k: (d or {}).get(k) for k in ("episodes", "C_r", "C_r_low", "C_r_high", "avg_speed",
+                                                          "avg_speed_low", "avg_speed_high", "R_r")}})
+    cols = [Column("method", "method"), Column("method_key", "key"), Column("level", "level"),
+            Column("status", "status"), Column("episodes", "episodes", "int"),
+            Column("C_r", "collision-free rate C_r [95% CI]", render=_with_ci("pct", "C_r")),
+            Column("C_r_low", "C_r low", "pct"), Column("C_r_high", "C_r high", "pct"),
+            Column("avg_speed", "average speed (m/s) [95% CI]", render=_with_ci("f2", "avg_speed")),
+            Column("avg_speed_low", "speed low", "f2"), Column("avg_speed_high", "speed high", "f2"),
+            Column("R_r", "R_r", "f1")]
+    display = Table("", "", [c for c in cols if c.key in ("method", "level", "status", "episodes", "C_r",
+                                                            "avg_speed", "R_r")], rows)
+    return Table("group1_deployment", "Group 1: two-lane, trained at level C, deployed at levels "
+                 f"{', '.join(results.levels)}", cols, rows,
+                 notes=["Episodes pool every seed's episodes at that level; intervals are 95% (Wilson for C_r, "
+                        "Student t for speed)."], display=display)
+
+
+def _runs_rows(results: Results, scenes, methods) -> list[dict]:
+    rows = []
+    for scene in scenes:
+        for m in methods:
+            res = results.get(m, scene)
+            if res is None:
+                continue
+            d = (res.deploy(TRAIN_TRAFFIC) if res.done else None) or {}
+            t = (res.train() if res.done else None) or {}
+            row = {"scene": SCENES[scene].label, "scene_key": scene, "method": METHOD_LABELS[m], "method_key": m,
+                   "status": _status(res), "runs": d.get("runs"), "episodes_per_run": d.get("episodes_per_run"),
+                   "T_c": t.get("T_c"), "T_c_sd": t.get("T_c_sd")}
+            for k in ("C_r", "collision_rate", "avg_speed", "R_r", "R_s"):
+                row[k], row[f"{k}_sd"] = d.get(k), d.get(f"{k}_sd")
+            rows.append(row)
+    return rows
+
+
+def _runs_table(name: str, title: str, rows: list[dict]) -> Table:
+    keys = ("C_r", "collision_rate", "avg_speed", "R_r", "R_s")
+    kinds = {"C_r": "pct", "collision_rate": "pct", "avg_speed": "f2", "R_r": "f2", "R_s": "pct"}
+    headers = {"C_r": "C_r", "collision_rate": "collision rate", "avg_speed": "avg speed (m/s)", "R_r": "R_r",
+               "R_s": "R_s"}
+    cols = [Column("scene", "scene"), Column("scene_key", "scene key"), Column("method", "method"),
+            Column("method_key", "method key"), Column("status", "status"), Column("runs", "runs", "int"),
+            Column("episodes_per_run", "episodes/run", "int"), Column("T_c", "T_c", "f3"),
+            Column("T_c_sd", "T_c sd", "f3")]
+    for k in keys:
+        cols += [Column(k, headers[k], kinds[k]), Column(f"{k}_sd", f"{headers[k]} sd", kinds[k])]
+    shown = [Column("scene", "scene"), Column("method", "method"), Column("status", "status"),
+             Column("runs", "runs", "int"), Column("episodes_per_run", "episodes/run", "int"),
+             Column("T_c", "T_c", render=_with_sd("f3", "T_c"))]
+    shown += [Column(k, f"{headers[k]} (± sd over runs)", render=_with_sd(kinds[k], k))
+              for k in keys if k != "collision_rate"]
+    return Table(name, title, cols, rows, display=Table("", "", shown, rows),
+                 notes=["Mean over all runs' episodes; ± is the standard deviation over runs (seeds), shown when "
+                        "there are two or more. R_s: merging and exiting only."])
+
+
+def group2(results: Results) -> Table:
+    methods = tuple(dict.fromkeys((OURS, *TABLE5_METHODS)))
+    return _runs_table("group2", "Group 2: multi-lane (normal, adversarial), merging and exiting at level C",
+                       _runs_rows(results, GROUP2_SCENES, methods))
+
+
+def group3(results: Results) -> Table:
+    methods = tuple(dict.fromkeys((OURS, *TABLE5_METHODS)))
+    return _runs_table("group3", "Group 3: adversarial two-lane, merging and exiting at level C",
+                       _runs_rows(results, GROUP3_SCENES, methods))
+
+
+def multilane(results: Results) -> Table:
+    rows = []
+    names = {"avg_speed": ("Ave. speed (m/s)", "f2"), "collision_rate": ("Collision rate", "pct"),
+             "R_r": ("Ave. reward", "f2")}
+    deploys = {}
+    for scene in MULTILANE_SCENES:
+        res = results.get(OURS, scene)
+        deploys[scene] = (res.deploy(TRAIN_TRAFFIC) if res is not None and res.done else None) or {}
+    for metric, (label, kind) in names.items():
+        row = {"metric": label, "metric_key": metric, "kind": kind}
+        for scene, col in (("multi-lane", "normal"), ("adv-multi-lane", "adversarial")):
+            row[col] = deploys[scene].get(metric)
+            row[f"{col}_sd"] = deploys[scene].get(f"{metric}_sd")
+            row[f"{col}_paper"] = paper.MULTILANE[scene][metric]
+        rows.append(row)
+    cols = [Column("metric", "metric"), Column("metric_key", "key")]
+    for col in ("normal", "adversarial"):
+        cols += [Column(col, col), Column(f"{col}_sd", f"{col} sd"), Column(f"{col}_paper", f"{col} (paper)")]
+
+    def cell(col: str) -> Callable[[dict], str]:
+        def render(row):
+            s = _fmt(row["kind"], row.get(col))
+            if row.get(f"{col}_sd") is not None:
+                s += " " + _fmt("pp" if row["kind"] == "pct" else "sd", row[f"{col}_sd"])
+            return f"{s} / {_fmt(row['kind'], row[f'{col}_paper'])}"
+        return render
+    shown = [Column("metric", "metric"), Column("normal", "normal: ours / paper", render=cell("normal")),
+             Column("adversarial", "adversarial: ours / paper", render=cell("adversarial"))]
+    return Table("multilane", "Multi-lane, MoE-RM-SRL (the paper's multi-lane table)", cols, rows,
+                 display=Table("", "", shown, rows),
+                 notes=["Collision rate = 1 - C_r; ± is the standard deviation over runs."])
+
+
+T5_KINDS = {"T_c": "f3", "T_r": "f2", "C_r": "pct", "R_r": "f2", "R_s": "pct"}
+
+
+def table5(results: Results) -> Table:
+    rows, wide = [], []
+    for scene in TABLE5_SCENES:
+        res_of = {m: results.get(m, scene) for m in TABLE5_METHODS}
+        metrics = list(paper.TABLE5[scene])
+        for metric in metrics:
+            wrow = {"scene": SCENES[scene].label, "metric": metric}
+            for m in TABLE5_METHODS:
+                res = res_of[m]
+                ours, spread = _t5_value(res, metric)
+                paper_value = paper.TABLE5[scene][metric][m]
+                rows.append({"scene": SCENES[scene].label, "scene_key": scene, "metric": metric,
+                             "method": METHOD_LABELS[m], "method_key": m, "status": _status(res), "ours": ours,
+                             "ours_sd": spread, "paper": paper_value})
+                wrow[m] = f"{_fmt(T5_KINDS[metric], ours)} / {_fmt(T5_KINDS[metric], paper_value)}"
+            wide.append(wrow)
+    cols = [Column("scene", "scene"), Column("scene_key", "scene key"), Column("metric", "metric"),
+            Column("method", "method"), Column("method_key", "method key"), Column("status", "status"),
+            Column("ours", "ours"), Column("ours_sd", "ours sd over runs"), Column("paper", "paper")]
+    shown = [Column("scene", "Scene"), Column("metric", "Metric")] + [
+        Column(m, f"{METHOD_LABELS[m] if m != OURS else 'Ours'} (ours / paper)") for m in TABLE5_METHODS]
+    return Table("table5", "Table 5: comparison on the six scenes (ours / paper)", cols, rows,
+                 display=Table("", "", shown, wide),
+                 notes=["T_c training collision-free rate, T_r final training return (last 10% of episodes), "
+                        "C_r deployment collision-free rate, R_r deployment reward, R_s success rate; means over "
+                        "seeds / pooled episodes at level C. '–': no result (see the report's job list)."])
+
+
+def _t5_value(res: Result | None, metric: str) -> tuple[float | None, float | None]:
+    if res is None or not res.done:
+        return None, None
+    if metric in ("T_c", "T_r"):
+        t = res.train()
+        return t[metric], t[f"{metric}_sd"]
+    d = res.deploy(TRAIN_TRAFFIC) or {}
+    return d.get(metric), d.get(f"{metric}_sd")
+
+
+def table6(results: Results) -> Table:
+    rows = []
+    for variant, label in (("full", "Full (Ours)"), *ABLATIONS.items()):
+        res = results.get(OURS, ABLATION_SCENE, () if variant == "full" else (variant,))
+        row = {"variant": label, "variant_key": variant, "status": _status(res)}
+        for metric in ("T_c", "T_r", "C_r", "R_r"):
+            row[metric], row[f"{metric}_sd"] = _t5_value(res, metric)
+            row[f"{metric}_paper"] = paper.TABLE6[variant][metric]
+        rows.append(row)
+    cols = [Column("variant", "variant"), Column("variant_key", "key"), Column("status", "status")]
+    for metric in ("T_c", "T_r", "C_r", "R_r"):
+        cols += [Column(metric, metric), Column(f"{metric}_sd", f"{metric} sd"),
+                 Column(f"{metric}_paper", f"{metric} (paper)")]
+    shown = [Column("variant", "Variant"), Column("status", "status")] + [
+        Column(m, f"{m} (ours / paper)", render=_both(T5_KINDS[m], m, f"{m}_paper"))
+        for m in ("T_c", "T_r", "C_r", "R_r")]
+    return Table("table6", "Table 6: ablation on adversarial two-lane (ours / paper)", cols, rows,
+                 display=Table("", "", shown, rows))
+
+
+def training(results: Results) -> Table:
+    """T_c, rise time and T_r of every non-ablation run: the training Pareto figure's data."""
+    rows = []
+    for scene in SCENES:
+        for m in METHOD_LABELS:
+            res = results.get(m, scene)
+            if res is None:
+                continue
+            t = (res.train() if res.done else None) or {}
+            rows.append({"scene": SCENES[scene].label, "scene_key": scene, "method": METHOD_LABELS[m],
+                         "method_key": m, "status": _status(res), "seeds": t.get("seeds"),
+                         "episodes": t.get("episodes"), "collisions": t.get("collisions"),
+                         "T_c": t.get("T_c"), "T_c_sd": t.get("T_c_sd"), "rise_time": t.get("rise_time"),
+                         "rise_time_sd": t.get("rise_time_sd"), "T_r": t.get("T_r"), "T_r_sd": t.get("T_r_sd")})
+    cols = [Column("scene", "scene"), Column("scene_key", "scene key"), Column("method", "method"),
+            Column("method_key", "method key"), Column("status", "status"), Column("seeds", "seeds", "int"),
+            Column("episodes", "training episodes", "int"), Column("collisions", "training collisions", "int"),
+            Column("T_c", "T_c", "f3"), Column("T_c_sd", "T_c sd", "f3"),
+            Column("rise_time", "rise time (steps)", "int"), Column("rise_time_sd", "rise time sd", "f0"),
+            Column("T_r", "T_r", "f2"), Column("T_r_sd", "T_r sd", "f2")]
+    shown = [c for c in cols if c.key in ("scene", "method", "status", "seeds", "episodes", "collisions")] + [
+        Column("T_c", "T_c", render=_with_sd("f3", "T_c")), Column("rise_time", "rise time (steps)", "int"),
+        Column("T_r", "T_r", render=_with_sd("f2", "T_r"))]
+    return Table("training_pareto", "Training: collision-free rate T_c against rise time", cols, rows,
+                 display=Table("", "", shown, rows),
+                 notes=["Rise time: env steps per seed until the 20-episode moving average of the return first "
+                        "reaches 90% of its range (highway_srl.experiments.train.training_metrics)."])
+
+
+CURVE_BINS = 20
+
+
+def training_curves(results: Results) -> tuple[Table, dict]:
+    """Return and cumulative collisions against env steps, per scene and method: mean and sd over seeds.
+
+    Returns the CSV/Markdown table and {scene: {method label: rows}} for the figures.
+    """
+    import numpy as np
+
+    rows, series = [], {}
+    for scene in SCENES:
+        for m in METHOD_LABELS:
+            res = results.get(m, scene)
+            if res is None or not res.done:
+                continue
+            episodes = res.episodes()
+            steps = res.job.steps
+            edges = np.linspace(0, steps, CURVE_BINS + 1)
+            seeds = sorted({e["seed"] for e in episodes}) or list(res.job.seeds)
+            ret = np.full((len(seeds), CURVE_BINS), np.nan)
+            col = np.zeros((len(seeds), CURVE_BINS))
+            for i, seed in enumerate(seeds):
+                eps = [e for e in episodes if e["seed"] == seed]
+                at = np.array([e["step"] for e in eps], dtype=float)
+                r = np.array([e["return"] for e in eps], dtype=float)
+                c = np.array([bool(e["collision"]) for e in eps], dtype=float)
+                idx = np.clip(np.searchsorted(edges, at, side="left") - 1, 0, CURVE_BINS - 1)
+                for b in range(CURVE_BINS):
+                    sel = idx == b
+                    if sel.any():
+                        ret[i, b] = r[sel].mean()
+                    col[i, b] = c[idx <= b].sum()
+            scene_rows = []
+            for b in range(CURVE_BINS):
+                have = ret[:, b][~np.isnan(ret[:, b])]
+                row = {"scene": SCENES[scene].label, "scene_key": scene, "method": METHOD_LABELS[m], "method_key": m,
+                       "step": float(edges[b + 1]), "seeds": len(seeds), "seeds_with_episodes": int(have.size),
+                       "return_mean": float(have.mean()) if have.size else None,
+                       "return_sd": float(have.std(ddof=1)) if have.size >= 2 else None,
+                       "collisions_mean": float(col[:, b].mean()),
+                       "collisions_sd": float(col[:, b].std(ddof=1)) if len(seeds) >= 2 else None}
+                scene_rows.append(row)
+            rows += scene_rows
+            series.setdefault(scene, {})[METHOD_LABELS[m]] = scene_rows
+    cols = [Column("scene", "scene"), Column("scene_key", "scene key"), Column("method", "method"),
+            Column("method_key", "method key"), Column("step", "env steps", "int"), Column("seeds", "seeds", "int"),
+            Column("seeds_with_episodes", "seeds with episodes", "int"),
+            Column("return_mean", "return", "f2"), Column("return_sd", "return sd", "f2"),
+            Column("collisions_mean", "cumulative collisions", "f2"), Column("collisions_sd", "collisions sd", "f2")]
+    summary = []
+    for scene, by_method in series.items():
+        for label, srows in by_method.items():
+            have = [r for r in srows if r["return_mean"] is not None]
+            summary.append({"scene": SCENES[scene].label, "method": label, "seeds": srows[-1]["seeds"],
+                            "first_return": have[0]["return_mean"] if have else None,
+                            "last_return": have[-1]["return_mean"] if have else None,
+                            "collisions": srows[-1]["collisions_mean"]})
+    shown = [Column("scene", "scene"), Column("method", "method"), Column("seeds", "seeds", "int"),
+             Column("first_return", "return, first bin", "f2"), Column("last_return", "return, last bin", "f2"),
+             Column("collisions", "training collisions per seed (mean)", "f2")]
+    table = Table("training_curves", "Training curves: return and cumulative collisions against env steps", cols,
+                  rows, display=Table("", "", shown, summary),
+                  notes=[f"The CSV has {CURVE_BINS} bins of env steps per scene and method; return: mean of the "
+                         "episodes ending in the bin; collisions: cumulative count; mean and sd over seeds."])
+    return table, series
+
+
+def all_tables(results: Results) -> dict[str, Table]:
+    return {t.name: t for t in (group1_deployment(results), group2(results), multilane(results), group3(results),
+                                table5(results), table6(results))}

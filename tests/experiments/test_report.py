@@ -1,0 +1,90 @@
+"""The report's verdicts on the paper's claims follow the numbers: they flip when the numbers flip."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+import study_fakes as fakes
+
+from highway_srl.experiments.report import Check, Claim, claims, dominates, write_report
+from highway_srl.experiments.runner import reproduce
+from highway_srl.experiments.study import OURS
+from highway_srl.experiments.tables import load_results
+
+WORSE = {"T_c": 0.2, "rise": 0.95, "C_r": 0.4, "speed": 4.0, "R_r": 20.0, "R_s": 0.1}
+BETTER = {"T_c": 1.0, "rise": 0.1, "C_r": 1.0, "speed": 9.5, "R_r": 300.0, "R_s": 0.95}
+
+
+@pytest.fixture
+def study(tmp_path):
+    root = tmp_path / "study"
+    reproduce("smoke", root, jobs=1, work=fakes.fake_work, log=lambda s: None, report=False)
+    return root
+
+
+def _rewrite(root, numbers_of) -> None:
+    """Overwrite every job whose (method, scene, options) numbers_of maps to numbers."""
+    for res in load_results(root):
+        numbers = numbers_of(res.job)
+        if numbers is not None:
+            shutil.rmtree(res.folder)
+            fakes.write_fake_job(root, res.job, numbers)
+
+
+def _verdicts(root) -> dict[str, str]:
+    return {c.key: c.verdict for c in claims(load_results(root))}
+
+
+def test_every_claim_is_confirmed_when_ours_wins_everywhere(study):
+    assert _verdicts(study) == {"collision_free_training": "confirmed", "pareto": "confirmed",
+                                "exit_success": "confirmed", "ablation": "confirmed"}
+
+
+def test_every_claim_flips_to_not_confirmed_when_ours_loses_everywhere(study):
+    _rewrite(study, lambda j: WORSE if j.method == OURS and not j.options else
+             (BETTER if j.method == OURS else None))
+    assert _verdicts(study) == {c: "not confirmed" for c in
+                                ("collision_free_training", "pareto", "exit_success", "ablation")}
+    text = write_report(study).read_text()
+    assert text.count("Verdict: **not confirmed**") == 4 and "Verdict: **confirmed**" not in text
+
+
+def test_one_scene_with_collisions_makes_the_training_claim_partial(study):
+    _rewrite(study, lambda j: {**fakes.GOOD, "T_c": 0.9} if (j.method, j.scene, j.options) == (OURS, "adv-exit", ())
+             else None)
+    results = load_results(study)
+    claim = next(c for c in claims(results) if c.key == "collision_free_training")
+    assert claim.verdict == "partly confirmed (5 of 6 checks)"
+    failed = [c for c in claim.checks if c.ok is False]
+    assert [c.what for c in failed] == ["Adv. exiting"] and "T_c 0.9000" in failed[0].detail
+
+
+def test_a_baseline_faster_and_as_safe_breaks_the_deployment_front_and_names_itself(study):
+    _rewrite(study, lambda j: BETTER if (j.method, j.scene) == ("sr-rl", "two-lane") else None)
+    claim = next(c for c in claims(load_results(study)) if c.key == "pareto")
+    deployment = [c for c in claim.checks if c.what.startswith("deployment")]
+    assert deployment and all(c.ok is False and "SR-RL" in c.detail for c in deployment)
+    assert claim.verdict.startswith("partly confirmed")
+
+
+def test_exit_success_is_not_confirmed_when_a_baseline_succeeds_more(study):
+    _rewrite(study, lambda j: {**fakes.POOR, "R_s": 1.0} if (j.method, j.scene) == ("mp-rl", "exit") else None)
+    claim = next(c for c in claims(load_results(study)) if c.key == "exit_success")
+    assert [c.ok for c in claim.checks] == [False, True] and "MP-RL 100.0%" in claim.checks[0].detail
+
+
+def test_missing_results_cannot_be_checked_and_say_so(study):
+    for res in load_results(study):
+        if res.job.method == OURS and res.job.options:
+            shutil.rmtree(res.folder)
+    claim = next(c for c in claims(load_results(study)) if c.key == "ablation")
+    assert claim.verdict == "cannot be checked" and all(c.ok is None for c in claim.checks)
+
+
+def test_verdict_and_dominance_rules():
+    assert dominates((1.0, 2.0), (1.0, 1.0)) and not dominates((1.0, 1.0), (1.0, 1.0))
+    assert not dominates((2.0, 0.0), (1.0, 1.0))
+    claim = Claim("k", "s", "c", [Check("a", True, ""), Check("b", None, "")])
+    assert claim.verdict == "confirmed where checked (1 of 2)"
+    assert Claim("k", "s", "c", []).verdict == "cannot be checked"

@@ -1,0 +1,132 @@
+"""Running the study: resume skips finished jobs, failures and unregistered methods are recorded, parallel
+workers, and one-line errors for bad input."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import study_fakes as fakes
+
+from highway_srl.agents import methods as methods_mod
+from highway_srl.cli import main
+from highway_srl.experiments import evaluate as evaluate_mod
+from highway_srl.experiments import train as train_mod
+from highway_srl.experiments.runner import reproduce, run_job
+from highway_srl.experiments.runs import read_json
+from highway_srl.experiments.study import OURS, study_jobs
+
+QUIET = {"log": lambda s: None, "report": False}
+
+
+def test_resume_runs_only_the_jobs_that_are_not_finished(tmp_path):
+    root = tmp_path / "study"
+    reproduce("smoke", root, jobs=1, work=fakes.fake_work, **QUIET)
+    jobs = study_jobs("smoke")
+    assert sorted(fakes.calls(root)) == sorted(j.id for j in jobs)
+    stamps = {j.id: (root / j.folder / "metrics.json").stat().st_mtime_ns for j in jobs}
+
+    state = reproduce("smoke", root, jobs=1, work=fakes.fake_work, **QUIET)
+    assert len(fakes.calls(root)) == len(jobs)  # nothing ran again
+    assert state["invocations"][-1]["ran"] == 0 and state["invocations"][-1]["skipped_done"] == len(jobs)
+    assert {j.id: (root / j.folder / "metrics.json").stat().st_mtime_ns for j in jobs} == stamps
+
+    (root / jobs[5].folder / "eval.json").unlink()  # trained, not evaluated: not done
+    reproduce("smoke", root, jobs=1, work=fakes.fake_work, **QUIET)
+    assert fakes.calls(root)[len(jobs):] == [jobs[5].id]
+
+
+def test_run_job_resumes_a_half_trained_run_and_only_evaluates_a_trained_one(tmp_path, monkeypatch):
+    seen = []
+    monkeypatch.setattr(train_mod, "train_run", lambda cfg, out, resume, **kw: seen.append(("train", resume)) or
+                        (out / "metrics.json").write_text("{}"))
+    monkeypatch.setattr(evaluate_mod, "evaluate_run", lambda run, **kw: seen.append(("eval",)) or
+                        kw["out"].write_text("{}"))
+    job = study_jobs("smoke", methods=(OURS,))[0]
+    folder = tmp_path / job.folder
+    folder.mkdir(parents=True)
+    (folder / "config.json").write_text("{}")  # an interrupted run
+    result = run_job(job.to_dict(), str(tmp_path))
+    assert seen == [("train", True), ("eval",)] and result["status"] == "done"
+    (folder / "eval.json").unlink()
+    seen.clear()
+    assert run_job(job.to_dict(), str(tmp_path))["evaluated"] and seen == [("eval",)]
+    assert read_json(folder / "job.json")["status"] == "done"
+
+
+def test_run_job_records_a_failure_instead_of_raising(tmp_path, monkeypatch):
+    def boom(*a, **k):
+        raise RuntimeError("replay buffer on fire")
+
+    monkeypatch.setattr(train_mod, "train_run", boom)
+    job = study_jobs("smoke", methods=(OURS,))[0]
+    result = run_job(job.to_dict(), str(tmp_path), return_files=True)
+    assert result["status"] == "failed" and result["message"] == "RuntimeError: replay buffer on fire"
+    assert read_json(tmp_path / job.folder / "job.json")["status"] == "failed" and "job.json" in result["files"]
+
+
+def _fail_rl(job_dict, root, device="cpu", threads=1, return_files=False):
+    if job_dict["method"] == "rl":
+        return {"status": "failed", "message": "RuntimeError: diverged", "wall_s": 0.1}
+    return fakes.fake_work(job_dict, root, device, threads, return_files)
+
+
+def test_failed_and_unregistered_jobs_are_recorded_and_retried_next_time(tmp_path, monkeypatch):
+    root = tmp_path / "study"
+    monkeypatch.setattr(methods_mod, "METHODS", {k: v for k, v in methods_mod.METHODS.items() if k != "et-rl"})
+    state = reproduce("smoke", root, jobs=1, work=_fail_rl, log=lambda s: None)
+    status = {k: (v["status"], v["message"]) for k, v in state["jobs"].items()}
+    assert status["two-lane/rl"] == ("failed", "RuntimeError: diverged")
+    assert status["exit/et-rl"][0] == "unavailable" and "'et-rl' is not registered" in status["exit/et-rl"][1]
+    assert sum(s == "done" for s, _ in status.values()) == 43 - 6 - 6
+    assert read_json(root / "study.json")["jobs"]["two-lane/rl"]["status"] == "failed"
+    report = (root / "report.md").read_text()
+    assert "`two-lane/rl`: failed: RuntimeError: diverged" in report and "`exit/et-rl`: unavailable" in report
+
+    monkeypatch.undo()  # et-rl is registered now and rl no longer fails: only those 12 jobs run
+    n = len(fakes.calls(root))
+    state = reproduce("smoke", root, jobs=1, work=fakes.fake_work, **QUIET)
+    assert sorted(fakes.calls(root)[n:]) == sorted(k for k, v in status.items() if v[0] != "done")
+    assert all(v["status"] == "done" for v in state["jobs"].values())
+
+
+def test_local_backend_runs_jobs_in_parallel_worker_processes(tmp_path):
+    root = tmp_path / "study"
+    state = reproduce("smoke", root, jobs=2, work=fakes.fake_work, methods=(OURS,), **QUIET)
+    assert len(state["jobs"]) == 11 and all(v["status"] == "done" for v in state["jobs"].values())
+    assert sorted(fakes.calls(root)) == sorted(state["jobs"])
+
+
+def _cli(capsys, *argv) -> tuple[int, list[str]]:
+    rc = main(["reproduce", *argv])
+    return rc, capsys.readouterr().err.strip().splitlines()
+
+
+def test_bad_input_gives_a_one_line_error(tmp_path, capsys):
+    root = tmp_path / "study"
+    reproduce("smoke", root, jobs=1, work=fakes.fake_work, **QUIET)
+    rc, err = _cli(capsys, "--budget", "quick", "--out", str(root))
+    assert rc == 2 and len(err) == 1 and "holds a study of budget 'smoke'" in err[0]
+    for argv, words in ((["--budget", "huge"], "unknown budget 'huge'"),
+                        (["--budget", "smoke", "--backend", "slurm"], "unknown backend 'slurm'"),
+                        (["--budget", "smoke", "--methods", "dqn-x"], "'dqn-x'"),
+                        ([], "choose a budget")):
+        rc, err = _cli(capsys, *argv, "--out", str(tmp_path / "new"))
+        assert rc == 2 and len(err) == 1 and words in err[0], (argv, err)
+    (tmp_path / "busy").mkdir()
+    (tmp_path / "busy" / "notes.txt").write_text("mine")
+    rc, err = _cli(capsys, "--budget", "smoke", "--out", str(tmp_path / "busy"))
+    assert rc == 2 and len(err) == 1 and "holds no study" in err[0]
+    assert json.loads((root / "study.json").read_text())["budget"] == "smoke"
+
+
+def test_a_study_made_with_other_budget_settings_is_refused(tmp_path, monkeypatch):
+    import dataclasses
+
+    from highway_srl.experiments import study as study_mod
+
+    root = tmp_path / "study"
+    reproduce("smoke", root, jobs=1, work=fakes.fake_work, methods=(OURS,), **QUIET)
+    monkeypatch.setitem(study_mod.BUDGETS, "smoke", dataclasses.replace(study_mod.BUDGETS["smoke"], steps=3200))
+    with pytest.raises(ValueError, match=r"made with other settings \(steps changed since\)"):
+        reproduce("smoke", root, jobs=1, work=fakes.fake_work, methods=(OURS,), **QUIET)
