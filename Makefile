@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 
 # the tests also exercise the SUMO and highway-env backends (optional extras for users)
 $(VENV)/.extras: $(STAMP)
-	$(BIN)/python -m pip install -q -e ".[test,sumo,highway-env,play]"
+	$(BIN)/python -m pip install -q -e ".[test,sumo,highway-env,play,ray]"
 	touch $(VENV)/.extras
 
 setup: $(STAMP)
