@@ -2,9 +2,15 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from highway_srl.constants import VEHICLE_LENGTH_M, VEHICLE_WIDTH_M
+
+# Two L x B boxes can only overlap if their centres are closer than twice the half-diagonal, so
+# |dx| and |dy| below this are a cheap necessary condition checked before the exact test.
+CONTACT_REACH_M = math.hypot(VEHICLE_LENGTH_M, VEHICLE_WIDTH_M) + 1e-3
 
 
 def boxes_overlap(
@@ -36,3 +42,36 @@ def boxes_overlap(
 def lateral_half_extent(heading: torch.Tensor, length_m: float = VEHICLE_LENGTH_M, width_m: float = VEHICLE_WIDTH_M):
     """Half of a rotated box's extent along y (m)."""
     return 0.5 * width_m * torch.cos(heading).abs() + 0.5 * length_m * torch.sin(heading).abs()
+
+
+def front_x_in_band(
+    x: torch.Tensor,
+    y: torch.Tensor,
+    heading: torch.Tensor,
+    y_lo: float,
+    y_hi: float,
+    length_m: float = VEHICLE_LENGTH_M,
+    width_m: float = VEHICLE_WIDTH_M,
+) -> torch.Tensor:
+    """Largest x of the part of each box that lies in the band y_lo <= y <= y_hi; -inf where none does.
+
+    That part is a convex polygon whose vertices are the box's corners inside the band and the points
+    where its edges cross the band's lines, so the maximum over those points is exact. It tells when a car
+    that is leaving a lane reaches the lane's end: only the part of it still in that lane can hit the end.
+    """
+    hl, hw = 0.5 * length_m, 0.5 * width_m
+    c, s = torch.cos(heading), torch.sin(heading)
+    corners = [(x + a * c - b * s, y + a * s + b * c) for a, b in ((hl, hw), (hl, -hw), (-hl, -hw), (-hl, hw))]
+    ninf = torch.full_like(x, -math.inf)
+    best = ninf
+    for cx, cy in corners:
+        best = torch.maximum(best, torch.where((cy >= y_lo) & (cy <= y_hi), cx, ninf))
+    for i in range(4):
+        (px, py), (qx, qy) = corners[i], corners[(i + 1) % 4]
+        dy = qy - py
+        safe_dy = torch.where(dy == 0, torch.ones_like(dy), dy)
+        for line in (y_lo, y_hi):
+            t = (line - py) / safe_dy
+            cross = (dy != 0) & (t >= 0) & (t <= 1)
+            best = torch.maximum(best, torch.where(cross, px + t * (qx - px), ninf))
+    return best

@@ -41,6 +41,12 @@ def uniform(k: torch.Tensor, n: int | None = None) -> torch.Tensor:
     return _shr(z, 40).to(torch.float32) * (1.0 / (1 << 24))
 
 
+def uniform_at(k: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """The draws uniform(k, n)[:, index] would give, for keys k and indices index of equal shape (M,)."""
+    z = mix64(k * 31 + index)
+    return _shr(z, 40).to(torch.float32) * (1.0 / (1 << 24))
+
+
 def randint(k: torch.Tensor, high: torch.Tensor | int, n: int | None = None) -> torch.Tensor:
     """Uniform integers in [0, high)."""
     # u < 1 - 2**-24, so u * high < high for any high below 2**24

@@ -23,6 +23,7 @@ from highway_srl.constants import (
 from highway_srl.sim import rng
 from highway_srl.sim.road import Road
 from highway_srl.sim.state import EXIT_INTENT, MERGE_INTENT, NO_INTENT, WorldState
+from highway_srl.sim.traffic import sorted_order
 
 EXIT_INTENT_PROB = 0.25  # share of mainline vehicles that take the off-ramp in the exit scenario
 S_EGO_LANE, S_LANE_PHASE, S_SPEED, S_HEADWAY, S_STYLE, S_INTENT, S_OFFSET, S_PHASE = range(8)
@@ -30,12 +31,13 @@ S_EGO_LANE, S_LANE_PHASE, S_SPEED, S_HEADWAY, S_STYLE, S_INTENT, S_OFFSET, S_PHA
 
 @dataclass(frozen=True)
 class Layout:
-    """Static slot of each surrounding vehicle: which queue (lane, side) and the matrix that sums spacings."""
+    """Static slot of each surrounding vehicle: which queue (lane, side) and its rank there."""
 
-    lane: torch.Tensor  # (M,) long; M = number of SVs; -1 = the ego's lane (two-lane / multi-lane)
+    lane: torch.Tensor  # (M,) long; M = number of SVs
     side: torch.Tensor  # (M,) +1 ahead, -1 behind
-    first: torch.Tensor  # (M,) bool, first of its queue
-    cumulative: torch.Tensor  # (M, M) float, cumulative[j, j'] = 1 if j' is in j's queue at or before j
+    slot: torch.Tensor  # (M,) long, queue * max_rank + rank: where the SV sits in a (queues, max_rank) grid
+    num_queues: int
+    max_rank: int
     ramp: torch.Tensor  # (M,) bool, starts on the ramp lane
     window_m: float  # half-length of the region kept populated around the ego
     margin_m: float  # hysteresis before a vehicle is recycled
@@ -60,19 +62,18 @@ def make_layout(road: Road, level: TrafficLevel, num_vehicles: int) -> Layout:
         s = (1 if c % 2 == 0 else -1) if not ramp[j] else (1 if c == 0 else -1)
         side.append(s)
         rank.append(sum(1 for i in range(j) if lanes[i] == lane and side[i] == s))
-    cum = torch.zeros(m, m)
-    for j in range(m):
-        for i in range(m):
-            if lanes[i] == lanes[j] and side[i] == side[j] and rank[i] <= rank[j]:
-                cum[j, i] = 1.0
+    queues = sorted({(lane, s) for lane, s in zip(lanes, side)})
+    max_rank = max(rank) + 1
+    slot = [queues.index((lane, s)) * max_rank + r for lane, s, r in zip(lanes, side, rank)]
     per_lane = math.ceil((m - n_ramp) / road.mainline_lanes)
     mean_spacing = VEHICLE_LENGTH_M + 0.5 * sum(level.headway_m)
     window = max(math.ceil(per_lane / 2) * mean_spacing + 0.5 * mean_spacing, 60.0)
     return Layout(
         lane=torch.tensor(lanes),
         side=torch.tensor(side, dtype=torch.float32),
-        first=torch.tensor([r == 0 for r in rank]),
-        cumulative=cum,
+        slot=torch.tensor(slot),
+        num_queues=len(queues),
+        max_rank=max_rank,
         ramp=torch.tensor(ramp),
         window_m=window,
         margin_m=VEHICLE_LENGTH_M + level.headway_m[1],
@@ -102,13 +103,19 @@ def spawn(
 
     h_lo, h_hi = level.headway_m
     spacing = VEHICLE_LENGTH_M + h_lo + (h_hi - h_lo) * rng.uniform(key(S_HEADWAY), m)  # (B, M)
-    offset = spacing @ layout.cumulative.to(dev).T  # distance from the ego along the queue
+    # distance from the ego along the queue: a running sum per queue (cumsum, not a matrix product, so that
+    # an env's numbers do not depend on how many envs share the batch)
+    slot = layout.slot.to(dev)
+    grid = torch.zeros(b, layout.num_queues * layout.max_rank, device=dev)
+    grid[:, slot] = spacing
+    grid = grid.view(b, layout.num_queues, layout.max_rank)
+    offset = grid.cumsum(2).view(b, -1)[:, slot]
+    first_spacing = grid[:, :, 0].repeat_interleave(layout.max_rank, 1)[:, slot]  # the queue's first spacing
     # lanes other than the ego's get a random phase so their queues do not line up with the ego's
     phase = rng.uniform(key(S_LANE_PHASE), road.num_lanes)  # (B, lanes)
     sv_lane = lay_lane.expand(b, m)
     in_ego_lane = sv_lane == ego_lane[:, None]
     u = torch.gather(phase, 1, sv_lane)
-    first_spacing = _first_spacing(spacing, layout, dev)
     shift = torch.where(side > 0, (1 - u) * first_spacing, u * first_spacing)
     shift = torch.where(in_ego_lane | layout.ramp.to(dev), torch.zeros_like(shift), shift)
     sv_x = ego_x[:, None] + side * (offset - shift)
@@ -150,7 +157,10 @@ def spawn(
         trigger_offset=offsets[rng.randint(key(S_OFFSET), len(offsets), n)],
         trigger_used=zeros_b.clone(),
         forced=zeros_b.clone(),
-        phase=rng.randint(key(S_PHASE), 8, n),
+        # vehicle n decides at steps t with (t + phase) % 8 == 0; the per-episode offset is drawn, the
+        # stride by index spreads the decisions (see dynamics.decision_slots)
+        phase=(rng.randint(key(S_PHASE), 8)[:, None] + torch.arange(n, device=dev)) % 8,
+        order=sorted_order(x),
         seed=seed.clone(),
         episode=episode.clone(),
         t=torch.zeros(b, dtype=torch.long, device=dev),
@@ -158,11 +168,3 @@ def spawn(
         exit1=ego_lane == 1,
         exit2=ego_lane == 2,
     )
-
-
-def _first_spacing(spacing: torch.Tensor, layout: Layout, dev) -> torch.Tensor:
-    """For each SV, the spacing of the first vehicle of its queue (B, M)."""
-    first = layout.first.to(dev)
-    # the first of a queue is the j' with cumulative[j, j'] = 1 and first[j'] = True: exactly one
-    sel = layout.cumulative.to(dev) * first.float()[None, :]
-    return spacing @ sel.T

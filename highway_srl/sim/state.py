@@ -29,6 +29,7 @@ class WorldState:
     trigger_used: torch.Tensor  # bool, the cut-in trigger was evaluated this episode
     forced: torch.Tensor  # bool, a forced (adversarial) lane change is under way
     phase: torch.Tensor  # long, step offset of the vehicle's 1 Hz lane-change decisions
+    order: torch.Tensor  # long, the vehicles sorted by x (a cache the neighbour search keeps up to date)
     # per env (B,)
     seed: torch.Tensor  # long
     episode: torch.Tensor  # long, episodes started with this seed

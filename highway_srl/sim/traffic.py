@@ -1,15 +1,19 @@
-"""Surrounding traffic: leaders and followers per lane, IDM car following, MOBIL lane changes.
+"""Surrounding traffic: lane occupancy, leaders and followers per lane, IDM car following, MOBIL parameters.
 
-Neighbour search sorts vehicles by x once per step and, per lane, finds the next occupant ahead and
-behind in sorted order with cumulative min/max scans: O(N log N) per env and no (B, N, N) tensors,
-which is what makes dense levels (N = 45) cheap.
+Neighbour search keeps each env's vehicles sorted by x (the order is cached in the state and only the
+envs where an overtake, a recycle or a reset broke it are re-sorted) and, per lane, finds the next
+occupant ahead and behind in sorted order with log-step min/max scans: O(N log N) per env and no
+(B, N, N) tensors, which is what makes dense levels (N = 45) cheap.
+
+Speed notes (CPU): torch.where with an irregular mask runs a branchy scalar loop (about 10 ns an element,
+30x an add), so the hot path blends with arithmetic and uses large finite sentinels instead of masks.
 """
 
 from __future__ import annotations
 
 import torch
 
-from highway_srl.constants import VEHICLE_LENGTH_M
+from highway_srl.constants import VEHICLE_LENGTH_M, VEHICLE_WIDTH_M
 
 # IDM parameters shared by every style (the style sets the jam distance s0 = DH and the desired speed).
 IDM_ACCEL_MPS2 = 1.5  # a: maximum acceleration
@@ -17,39 +21,143 @@ IDM_COMFORT_BRAKE_MPS2 = 2.0  # b: comfortable deceleration
 IDM_TIME_HEADWAY_S = 1.0  # T
 IDM_DELTA = 4.0
 SV_BRAKE_LIMIT_MPS2 = 6.0  # physical limit IDM's output is clamped to
+_SQRT_AB2 = 2.0 * (IDM_ACCEL_MPS2 * IDM_COMFORT_BRAKE_MPS2) ** 0.5
 # MOBIL parameters
 MOBIL_POLITENESS = 0.3
 MOBIL_THRESHOLD_MPS2 = 0.2
-MOBIL_SAFE_BRAKE_MPS2 = 3.0  # the new follower must not have to brake harder than this
+MOBIL_SAFE_BRAKE_MPS2 = 3.0  # neither the changer nor its new follower may need to brake harder than this
+MOBIL_EGO_SAFE_BRAKE_MPS2 = 1.5  # stricter when the new follower is the ego: nominal SVs do not cut it off
+MOBIL_MIN_GAP_M = 2.0  # bumper-to-bumper room required ahead and behind in the target lane
 MANDATORY_BONUS_MPS2 = 10.0  # merging / exiting vehicles change whenever it is safe
+# A lane change under way (not yet across the boundary) is abandoned when it turns unsafe (hysteresis
+# over the MOBIL thresholds so that a change is not started and abandoned in the same second).
+ABORT_BRAKE_MPS2 = 4.5
+ABORT_EGO_BRAKE_MPS2 = 3.0
+ABORT_GAP_M = 1.0
+LANE_CHANGE_TIME_S = 3.0  # a change is only started if it can be completed inside the change window
+# A vehicle occupies every lane its footprint reaches, widened by this margin (more than one step of
+# lateral travel), besides its own and its target lane: followers there see it, and contacts are checked.
+OCCUPANCY_MARGIN_M = 0.3
+FAR_M = 1.0e6  # sentinel position of a missing leader (+) or follower (-)
+
+
+def approx_half_width(heading: torch.Tensor) -> torch.Tensor:
+    """An upper bound (within 0.1 m for |heading| <= 0.6) of a rotated box's half extent along y, without
+    trigonometry: B/2 (1 - h^2/2) + L/2 |h| >= B/2 cos h + L/2 sin |h|."""
+    h = heading.abs()
+    return 0.5 * VEHICLE_WIDTH_M * (1.0 - 0.5 * h * h) + 0.5 * VEHICLE_LENGTH_M * h
+
+
+def occupancy(y, half_width, lane, target_lane, num_lanes: int, lane_width_m: float) -> torch.Tensor:
+    """(K, B, N) bool: vehicle n occupies lane k (its own lane, its target lane, or lane k's band is
+    within its footprint's lateral extent half_width (B, N) plus OCCUPANCY_MARGIN_M)."""
+    lo = y - half_width - OCCUPANCY_MARGIN_M
+    hi = y + half_width + OCCUPANCY_MARGIN_M
+    rows = []
+    for k in range(num_lanes):
+        band = (hi > (k - 0.5) * lane_width_m) & (lo < (k + 0.5) * lane_width_m)
+        rows.append(band | (lane == k) | (target_lane == k))
+    return torch.stack(rows)
+
+
+def sorted_order(x: torch.Tensor, order: torch.Tensor | None = None) -> torch.Tensor:
+    """(B, N) long: the stable ascending order of x along dim 1 (ties by index), reusing `order` in the
+    envs where it still holds, so that only envs where vehicles passed each other are sorted again."""
+    if order is None:
+        return torch.sort(x, dim=1, stable=True).indices
+    xs = x.gather(1, order)
+    d = xs[:, 1:] - xs[:, :-1]
+    broken = (d < 0) | ((d == 0) & (order[:, 1:] < order[:, :-1]))
+    rows = broken.any(1).nonzero().squeeze(1)
+    if rows.numel() == 0:
+        return order
+    order = order.clone()
+    order[rows] = torch.sort(x[rows], dim=1, stable=True).indices
+    return order
+
+
+def _scan(a: torch.Tensor, op, reverse: bool) -> torch.Tensor:
+    """Inclusive running op (torch.minimum / maximum) along the last dim, in log2(N) shifted steps;
+    overwrites a (each step's right-hand side is computed before it is written)."""
+    n = a.shape[-1]
+    s = 1
+    while s < n:
+        if reverse:  # a[p] = op(a[p], a[p + s])
+            a[..., : n - s] = op(a[..., : n - s], a[..., s:])
+        else:  # a[p] = op(a[p], a[p - s])
+            a[..., s:] = op(a[..., s:], a[..., : n - s])
+        s *= 2
+    return a
+
+
+_KEY = 128
+
+
+def lane_leaders(occupancy: torch.Tensor, order: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Nearest occupant ahead in each lane, for every vehicle: (leader (K, B, N) long, N = none;
+    the occupancy in sorted order (K, B, N) long 0/1, for follower lookups with followers_of)."""
+    K, B, N = occupancy.shape
+    if N >= _KEY:
+        raise ValueError(f"at most {_KEY - 1} vehicles per env are supported, got {N}")
+    order_k = order.expand(K, B, N)
+    occ = torch.gather(occupancy, 2, order_k).long()  # in sorted order
+    key = torch.arange(N, device=order.device) * _KEY + order  # (B, N)
+    none = _KEY * _KEY + N  # N modulo _KEY, above every key
+    # ahead[p] = the key of min{q > p : occ[q]}
+    ahead = _scan(none + occ * (key - none), torch.minimum, reverse=True)
+    ahead = torch.cat([ahead[..., 1:], torch.full_like(ahead[..., :1], none)], 2)
+    return torch.empty_like(ahead).scatter_(2, order_k, ahead & (_KEY - 1)), occ
+
+
+def follower_keys(occ_sorted: torch.Tensor, order: torch.Tensor) -> torch.Tensor:
+    """(K, B, N) long, in sorted order: at position p, the key (see lane_neighbours) of the nearest
+    occupant before p; key & (128 - 1) is that vehicle's index, N where there is none."""
+    n = order.shape[1]
+    key = torch.arange(n, device=order.device) * _KEY + order
+    none = n - _KEY  # N modulo _KEY, below every key
+    behind = _scan(none + occ_sorted * (key - none), torch.maximum, reverse=False)
+    return torch.cat([torch.full_like(behind[..., :1], none), behind[..., :-1]], 2)
+
+
+def followers_of(behind_keys: torch.Tensor, rank: torch.Tensor, k, b, i) -> torch.Tensor:
+    """Nearest occupant behind vehicle i of env b in lane k (all (M,) long), N where there is none;
+    behind_keys from follower_keys, rank from inverse_order."""
+    return behind_keys[k, b, rank[b, i]] & (_KEY - 1)
+
+
+def inverse_order(order: torch.Tensor) -> torch.Tensor:
+    """(B, N) rank of each vehicle in the sorted order."""
+    b, n = order.shape
+    return torch.empty_like(order).scatter_(1, order, torch.arange(n, device=order.device).expand(b, n))
 
 
 def lane_neighbours(
-    x: torch.Tensor, occupancy: torch.Tensor
+    x: torch.Tensor, occupancy: torch.Tensor, order: torch.Tensor | None = None
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Nearest vehicle ahead and behind in each lane, for every vehicle.
 
-    x: (B, N) positions; occupancy: (K, B, N) bool, vehicle n occupies lane k.
-    Returns leader, follower: (K, B, N) long vehicle indices, -1 where there is none. A vehicle is never
-    its own neighbour. Ties in x are broken by index through the stable sort.
+    x: (B, N) positions; occupancy: (K, B, N) bool, vehicle n occupies lane k; order: (B, N) the stable
+    ascending order of x (see sorted_order), computed here if not given.
+    Returns leader, follower: (K, B, N) long vehicle indices, N where there is none (so that they can
+    index arrays padded with one sentinel column). A vehicle is never its own neighbour; ahead / behind
+    follow the stable order, so vehicles level in x are ordered by index.
+
+    The scans run on keys position * 128 + vehicle index (N < 128), so the nearest occupant's index comes
+    out of the running min / max without a lookup. (The step itself only needs every leader, and the
+    followers of a few vehicles: see lane_leaders and followers_of.)
     """
     K, B, N = occupancy.shape
-    order = torch.sort(x, dim=1, stable=True).indices  # (B, N)
-    occ = torch.gather(occupancy, 2, order.expand(K, B, N))  # in sorted order
-    pos = torch.arange(N, device=x.device).expand(K, B, N)
-    ahead = torch.where(occ, pos, N)
-    # min over q > p: reverse cumulative min, shifted by one
-    ahead = torch.flip(torch.cummin(torch.flip(ahead, [2]), 2).values, [2])
-    ahead = torch.cat([ahead[..., 1:], torch.full_like(ahead[..., :1], N)], 2)
-    behind = torch.where(occ, pos, -1)
-    behind = torch.cummax(behind, 2).values
-    behind = torch.cat([torch.full_like(behind[..., :1], -1), behind[..., :-1]], 2)
-    order_k = order.expand(K, B, N)
-    lead_sorted = torch.where(ahead < N, torch.gather(order_k, 2, ahead.clamp(max=N - 1)), -1)
-    foll_sorted = torch.where(behind >= 0, torch.gather(order_k, 2, behind.clamp(min=0)), -1)
-    leader = torch.empty_like(lead_sorted).scatter_(2, order_k, lead_sorted)
-    follower = torch.empty_like(foll_sorted).scatter_(2, order_k, foll_sorted)
+    if order is None:
+        order = sorted_order(x)
+    leader, occ = lane_leaders(occupancy, order)
+    behind = follower_keys(occ, order)
+    follower = torch.empty_like(behind).scatter_(2, order.expand(K, B, N), behind & (_KEY - 1))
     return leader, follower
+
+
+def pad(values: torch.Tensor, fill: float) -> torch.Tensor:
+    """(B, N) -> (B, N + 1) with a sentinel column, indexable by neighbour indices (N = none)."""
+    return torch.cat([values, torch.full_like(values[:, :1], fill)], 1)
 
 
 def idm_accel(v, v0, s0, gap, v_lead, has_lead):
@@ -58,25 +166,32 @@ def idm_accel(v, v0, s0, gap, v_lead, has_lead):
     v, v0, s0: follower speed, desired speed, jam distance; gap: bumper-to-bumper distance to the leader;
     v_lead: leader speed; has_lead: False means free road.
     """
-    free = 1.0 - (v / v0.clamp(min=0.1)) ** IDM_DELTA
-    s_star = s0 + (v * IDM_TIME_HEADWAY_S + v * (v - v_lead) / (2.0 * (IDM_ACCEL_MPS2 * IDM_COMFORT_BRAKE_MPS2) ** 0.5)).clamp(min=0.0)
-    inter = torch.where(has_lead, (s_star / gap.clamp(min=0.05)) ** 2, torch.zeros_like(v))
+    # powers as products: pow() takes a different (vectorised or scalar) code path depending on the
+    # tensor's length and can differ in the last bit, which would make an env depend on its batch
+    free = idm_free_term(v, v0)
+    s_star = s0 + (v * IDM_TIME_HEADWAY_S + v * (v - v_lead) / _SQRT_AB2).clamp(min=0.0)
+    r = s_star / gap.clamp(min=0.05)
+    inter = torch.where(has_lead, r * r, torch.zeros_like(v))
     return (IDM_ACCEL_MPS2 * (free - inter)).clamp(min=-SV_BRAKE_LIMIT_MPS2)
 
 
+def idm_free_term(v: torch.Tensor, v0: torch.Tensor) -> torch.Tensor:
+    """1 - (v / v0)^4, the free-road part of IDM (computed once per step, shared by every lane)."""
+    r = v / v0.clamp(min=0.1)
+    r = r * r
+    return 1.0 - r * r
+
+
+def idm_accel_fast(free, v, s0, gap, v_lead):
+    """idm_accel with the free term given and a missing leader encoded as a huge gap (FAR_M): no masks."""
+    s_star = s0 + (v * IDM_TIME_HEADWAY_S + v * (v - v_lead) / _SQRT_AB2).clamp(min=0.0)
+    r = s_star / gap.clamp(min=0.05)
+    return (IDM_ACCEL_MPS2 * (free - r * r)).clamp(min=-SV_BRAKE_LIMIT_MPS2)
+
+
 def gather_lead(values: torch.Tensor, idx: torch.Tensor, fill: float) -> torch.Tensor:
-    """values (B, N) read at vehicle indices idx (B, M) with -1 -> fill."""
-    out = torch.gather(values, 1, idx.clamp(min=0))
-    return torch.where(idx >= 0, out, torch.full_like(out, fill))
-
-
-def accel_behind(x, v, v0, s0, follower_idx, lead_x, lead_v, has_lead, wall_gap=None):
-    """IDM acceleration of vehicles (B, M) given leader positions/speeds (B, M); optional lane-end wall."""
-    gap = lead_x - x - VEHICLE_LENGTH_M
-    v_lead = lead_v
-    if wall_gap is not None:
-        use_wall = wall_gap < torch.where(has_lead, gap, torch.full_like(gap, float("inf")))
-        gap = torch.where(use_wall, wall_gap, gap)
-        v_lead = torch.where(use_wall, torch.zeros_like(v_lead), v_lead)
-        has_lead = has_lead | use_wall
-    return idm_accel(v, v0, s0, gap, v_lead, has_lead)
+    """values (B, N) read at vehicle indices idx (B, M); indices outside [0, N) (-1 or N: none) -> fill."""
+    n = values.shape[1]
+    ok = (idx >= 0) & (idx < n)
+    out = torch.gather(values, 1, idx.clamp(0, n - 1))
+    return torch.where(ok, out, torch.full_like(out, fill))

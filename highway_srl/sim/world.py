@@ -40,7 +40,7 @@ class StepEvents:
     failure: torch.Tensor  # exit: missed the off-ramp (terminal)
     terminated: torch.Tensor
     truncated: torch.Tensor  # the 320-step limit
-    sv_collisions: torch.Tensor  # (B,) long, SV-SV contacts this step (the traffic model should avoid them)
+    sv_collisions: torch.Tensor  # (B,) long, SV-SV pairs whose boxes overlap after this step (nominal traffic: 0)
 
 
 def check_device(device: str | torch.device) -> torch.device:
@@ -124,9 +124,9 @@ class World:
         s = self.state
         target_lane = torch.as_tensor(target_lane, device=self.device).long().reshape(self.num_envs)
         target_speed = torch.as_tensor(target_speed, device=self.device, dtype=torch.float32).reshape(self.num_envs)
-        sv_collisions = dynamics.advance(s, self.road, self._lane_tables, self.layout, target_lane, target_speed,
-                                         self.adversarial)
-        collision = dynamics.ego_collision(s, self.road, self._lane_tables)
+        sv_collisions, neighbours = dynamics.advance(s, self.road, self._lane_tables, self.layout, target_lane,
+                                                     target_speed, self.adversarial)
+        collision = dynamics.ego_collision(s, self.road, self._lane_tables, neighbours)
         success, failure = dynamics.stage_events(s, self.road)
         dynamics.recycle(s, self.road, self.layout, self.level)
         s.t += 1
