@@ -1,7 +1,7 @@
 """The paper's baselines (§4.2), the rule-based driver and the ablations of Table 6, as `Method`s.
 
 Each one is the few lines that make it different; the trainer, replay, learner, logs and metrics are
-shared. docs/notes-baselines.md says exactly what each is and which choices the paper leaves open.
+shared. docs/paper-notes.md says exactly what each is and which choices the paper leaves open.
 
   method       view    actions  acting rule                                   training reward
   rl           raw     A (5)    ε-greedy argmax Q                             speed, -320 on collision
@@ -32,7 +32,7 @@ from highway_srl.rules.reward_machine import U2, U4
 
 EGO_VX_COLUMN = OBS_NAMES.index("ego_vx")  # v_x / v_max (every view normalises it the same way)
 
-# LM-RL (docs/notes-baselines.md, "LM-RL"): constraint E[Σ_t c_t] <= COST_LIMIT per episode.
+# LM-RL (docs/paper-notes.md, "LM-RL"): constraint E[Σ_t c_t] <= COST_LIMIT per episode.
 COST_LIMIT = 16.0  # 5% of an episode's 320 steps with a safe-distance rule violated
 COLLISION_COST = float(EPISODE_STEPS)  # a collision costs as much as violating the rules for a whole episode
 LAMBDA_LR = 0.01  # dual step per unit of episode cost above the limit
@@ -282,7 +282,7 @@ class RuleBased(_Options, Method):
     """IDM + MOBIL-style driver through Table 1 (agents/rule_based.py); nothing is learned: no transition is
     stored and no network is updated (one unused network per seed keeps the run folder's shape).
     Its layer holds the lateral plan (hold_lane_change): with the literal Eq. 34 a lane change cannot be
-    completed by any sequence of actions once m*_L = 1 (docs/notes-baselines.md, "Lane changes")."""
+    completed by any sequence of actions once m*_L = 1 (docs/paper-notes.md, "Lane changes")."""
 
     name = "rule-based"
     trains = False

@@ -18,7 +18,7 @@ from highway_srl.constants import BATCH_SIZE, GAMMA, LEARNING_RATE, OBS_DIM, TOT
 
 @dataclass
 class DQNConfig:
-    """Table 2 values, plus the choices the paper leaves open (see docs/notes-agents.md)."""
+    """Table 2 values, plus the choices the paper leaves open (see docs/paper-notes.md)."""
 
     lr: float = LEARNING_RATE  # Table 2
     gamma: float = GAMMA  # Table 2

@@ -5,7 +5,7 @@
     make_backend("ours", "two-lane", "C", seed=0)                          # our World with one env
 
 Each backend runs one env (num_envs = 1) on the CPU and yields the same StepEvents and Snapshot
-semantics as our World; docs/notes-backends.md lists what still differs. The simulators are optional
+semantics as our World; docs/backends.md lists what still differs. The simulators are optional
 extras (`pip install 'highway-srl[sumo]'`, `'highway-srl[highway-env]'`) imported only when asked for.
 """
 

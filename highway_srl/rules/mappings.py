@@ -3,7 +3,7 @@
 Frames (sim/road.py): lane k's centre is at y = k w_L, y grows to the right, lane 0 is the leftmost.
 A two-lane model sees a pair of neighbouring lanes (base_lane, base_lane + 1) as its local lanes 0 and 1;
 its local lateral coordinate is y_local = y - base_lane w_L, so the local lane centres are at 0 and w_L
-and the boundary between them at w_L / 2 (docs/notes-rules.md, "Lateral frame").
+and the boundary between them at w_L / 2 (docs/paper-notes.md, "Lateral frame").
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """The 37 network inputs (§3.1, §3.3, Algorithm 1, §4.1): E_A = ⟨S*, R*_SV, u*⟩.
 
 S* (29) = s_vehicle (ego + SV1..SV4, each x, y, v_x, v_y, φ: 25) + C_ID, m*_L, T*_ID, v*; then R*_SV1..4 (4)
-and the RM state u* one-hot over u1..u4 (4). Normalisation (docs/notes-rules.md, "Relative positions"):
+and the RM state u* one-hot over u1..u4 (4). Normalisation (docs/paper-notes.md, "Relative positions"):
   ego x      signed distance to the scenario's next key boundary, (x_key - x_EV) / 100 m, clipped to
              [-3, 3] (merge: x2, the start of the stability zone; exit: x2, the end of the diverging zone;
              two-lane and multi-lane: 0, the road looks the same everywhere)

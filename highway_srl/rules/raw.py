@@ -4,7 +4,7 @@
     step = layer.observe(world)                              # SafetyStep whose models are RawModelSteps
     lane, speed = layer.act(action)                          # action: index into FIVE_ACTIONS or ACTIONS
 
-What is removed, against `SafetyLayer` (docs/notes-baselines.md, "Raw view"):
+What is removed, against `SafetyLayer` (docs/paper-notes.md, "Raw view"):
 - ID mapping: lanes keep their global indices (C_ID, T_ID in 0..K-1; y is the global lateral position).
   There is one model per step, never two. Its adjacent lane (SV2, SV4) is the lane being changed into
   during a lane change, else the two-lane "other lane" on raw indices: lane 0's right neighbour, any other

@@ -1,7 +1,7 @@
 """Safe distance and the traffic-rule indicator R_SVi of §3.2 (Eqs. 19-27), batched.
 
 Numbering used here for the "Safe Distance" block of §3.2 (the paper numbers it as one run of equations;
-docs/notes-rules.md gives the same table):
+docs/paper-notes.md gives the same table):
   Eq. 19  reaction quantities Δx_SV,δt, Δx_EV,δt, v_SV,Res
   Eq. 20  stopping distances d_EV,SD, d_SV,SD
   Eq. 21  front condition (SV ahead, i = 1, 2)
@@ -17,7 +17,7 @@ longitudinal and >= 0 (negative values are clamped to 0), braking decelerations 
 (the paper's |a_D,max|), `gap_m` is the bumper-to-bumper gap, which is the paper's point-mass Δx
 (a collision is gap <= 0).
 
-Two readings (docs/notes-rules.md, "Safe distance"):
+Two readings (docs/paper-notes.md, "Safe distance"):
 - literal=True: Eqs. 19-27 as printed, subscripts resolved as v_SV,Res,x = v_SV,Res, t*_SV,Stop =
   v_SV,Res / |a_SV| (time for the braking SV to stop once the reaction time is over) and t_SV,Stop =
   v_SV / |a_SV|. It breaks its own promise (scripts/sd_sweep.py finds counterexamples).

@@ -322,7 +322,7 @@ def _adversarial_cut_ins(s: WorldState, tables: LaneTables, nb: Neighbours) -> N
     to its leader there (MOBIL_MIN_GAP_M plus the difference of their braking distances) is a candidate,
     so a cut-in never lands on another SV. With
     ADVERSARIAL_ALONGSIDE an SV alongside the ego (its centre at most L behind the ego's) may also cut
-    in, which is a side swipe no driving policy can avoid (see docs/notes-sim.md).
+    in, which is a side swipe no driving policy can avoid (see docs/paper-notes.md).
     """
     ego_lane, ego_x, ego_v = s.lane[:, :1], s.x[:, :1], s.v[:, :1]
     lowest = ego_x - VEHICLE_LENGTH_M if ADVERSARIAL_ALONGSIDE else ego_x + VEHICLE_LENGTH_M

@@ -36,7 +36,7 @@ def test_lane_change_sets_target_and_rm_enters_lane_change_mode(hand_world):
     layer = SafetyLayer(world.road, hold_lane_change=False)
     layer.observe(world)
     lane, speed = layer.act(torch.tensor([LANE_CHANGE]))
-    # R*_SV1 = 0: the ego changes lanes braking as Slower would (brake_while_changing, docs/notes-lead.md)
+    # R*_SV1 = 0: the ego changes lanes braking as Slower would (brake_while_changing, docs/paper-notes.md)
     assert lane.tolist() == [1] and speed.tolist() == [9.25]
     p = layer.observe(world).primary  # the ego has not moved: d_VL = 3.5 >= w_L/2, R1 false -> u4
     assert int(p.t_id[0]) == 1 and int(p.rm_state[0]) == U4

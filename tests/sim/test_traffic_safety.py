@@ -69,7 +69,7 @@ def test_idm_followers_never_rear_end_the_ego_braking_at_full_force(traffic):
 @pytest.mark.parametrize("scenario", SCENARIOS)
 def test_nominal_traffic_has_no_sv_contacts_and_the_idm_ego_does_not_crash(scenario, traffic):
     # (a regression guard; offline, 200 envs x 320 steps of every scenario x level, nominal and adversarial,
-    # gave no SV-SV contact either, see docs/notes-sim.md)
+    # gave no SV-SV contact either, see docs/paper-notes.md)
     world = World(scenario, traffic, num_envs=8, seed=100)
     sv_contacts = brute_contacts = ego_crashes = episodes = 0
     for t, events in drive(world, 320):
