@@ -30,7 +30,7 @@ def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0) -> 
     lines = ["# highway-srl demo", "",
              f"MoE-RM-SRL trained for {metrics['env_steps_per_seed']:,} steps on two-lane level C "
              f"({metrics['wall_s']:.0f} s, {metrics['env_steps_per_s']:,.0f} env-steps/s); "
-             f"training collision-free rate T_c = {metrics['mean']['T_c']}, final return T_r = {metrics['mean']['T_r']}.",
+             f"training collision-free rate T_c = {_fmt(metrics['mean']['T_c'], 3)}, final return T_r = {_fmt(metrics['mean']['T_r'], 1)}.",
              "", f"Deployment, {episodes} episodes per level:", "",
              "| level | collision-free C_r | average speed (m/s) | R_r |", "|---|---|---|---|"]
     for level, r in report["levels"].items():
@@ -40,6 +40,10 @@ def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0) -> 
     print("\n".join(lines))
     print(f"report: {out / 'report.md'}")
     return out / "report.md"
+
+
+def _fmt(value, digits: int) -> str:
+    return "n/a (no episode finished)" if value is None else f"{value:.{digits}f}"
 
 
 def _plot(report: dict, path: Path) -> Path:
