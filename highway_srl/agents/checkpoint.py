@@ -25,7 +25,8 @@ class CheckpointError(ValueError):
     """A checkpoint folder is missing, unreadable, or belongs to a different run setup."""
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
+def write_atomic(path: Path, data: bytes) -> None:
+    """Write bytes so that a reader sees the old file or the new one, never a torn one."""
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
@@ -63,8 +64,8 @@ def save_checkpoint(path_dir: str | os.PathLike, tensors: dict[str, torch.Tensor
     folder.mkdir(parents=True, exist_ok=True)
     cpu = {k: v.detach().to("cpu").contiguous() for k, v in tensors.items()}
     meta_text = json.dumps(meta, indent=2, sort_keys=True)  # fails here, before anything is written
-    _write_atomic(folder / MODEL_FILE, safetensors_bytes(cpu))
-    _write_atomic(folder / META_FILE, (meta_text + "\n").encode())
+    write_atomic(folder / MODEL_FILE, safetensors_bytes(cpu))
+    write_atomic(folder / META_FILE, (meta_text + "\n").encode())
     _fsync_dir(folder)
 
 

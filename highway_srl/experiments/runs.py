@@ -9,6 +9,7 @@ import tempfile
 from pathlib import Path
 
 from highway_srl import __version__
+from highway_srl.agents.checkpoint import write_atomic
 
 
 def commit() -> str | None:
@@ -30,20 +31,9 @@ def provenance() -> dict:
 
 
 def write_json(path: Path, data) -> None:
-    """Write JSON atomically: a temp file in the same folder, fsync, rename."""
+    """Write JSON atomically (temp file in the same folder, fsync, rename)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(data, f, indent=2, default=str)
-            f.write("\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_atomic(path, (json.dumps(data, indent=2, default=str) + "\n").encode())
 
 
 def read_json(path: Path) -> dict:
