@@ -64,9 +64,9 @@ def _episode_row(e: Episode) -> dict:
             "avg_speed": round(e.avg_speed, 4), "success": e.success, "deploy_reward": round(e.deploy_reward, 4)}
 
 
-def _meta(cfg: TrainConfig, trainer: Trainer) -> dict:
+def _meta(cfg: TrainConfig, trainer: Trainer, code: dict) -> dict:
     return {"method": cfg.method, "scenario": cfg.scenario, "traffic": cfg.traffic, "adversarial": cfg.adversarial,
-            "seeds": list(cfg.seeds), "env_steps": trainer.env_steps, "config": cfg.to_dict(), **provenance()}
+            "seeds": list(cfg.seeds), "env_steps": trainer.env_steps, "config": cfg.to_dict(), **code}
 
 
 class _Scalars:
@@ -96,6 +96,7 @@ def train_run(cfg: TrainConfig, out: str | Path, resume: bool = False, checkpoin
               progress: bool = True) -> dict:
     """Train and write the run folder; returns metrics.json's content."""
     out = Path(out)
+    code = provenance()  # the code that runs is the code loaded now, not what is checked out at the end
     if resume:
         if not (out / "config.json").exists():
             raise FileNotFoundError(f"cannot resume: {str(out)!r} has no config.json")
@@ -116,7 +117,7 @@ def train_run(cfg: TrainConfig, out: str | Path, resume: bool = False, checkpoin
         if resume:
             log.unlink(missing_ok=True)
         prior_wall = 0.0
-        write_json(out / "config.json", {"config": cfg.to_dict(), **provenance()})
+        write_json(out / "config.json", {"config": cfg.to_dict(), **code})
     log.touch()
     scalars = _Scalars(out)
     recent: list[Episode] = []
@@ -147,19 +148,19 @@ def train_run(cfg: TrainConfig, out: str | Path, resume: bool = False, checkpoin
             last_log, t_log, s_log = trainer.env_steps, now, trainer.env_steps
         if trainer.env_steps - last_ckpt >= checkpoint_every and trainer.env_steps < cfg.steps:
             wall = prior_wall + time.perf_counter() - started
-            save_checkpoint(out / "resume", trainer.state_dict(), {**_meta(cfg, trainer), "wall_s": wall})
+            save_checkpoint(out / "resume", trainer.state_dict(), {**_meta(cfg, trainer, code), "wall_s": wall})
             last_ckpt = trainer.env_steps
     if bar is not None:
         bar.close()
     wall = prior_wall + time.perf_counter() - started
     learner_state = {f"learner.{k}": v for k, v in trainer.learner.state_dict().items()}
     learner_state.update({f"method.{k}": v for k, v in trainer.method.state_dict().items()})  # e.g. LM-RL's λ
-    save_checkpoint(out / "model", learner_state, {**_meta(cfg, trainer), "wall_s": wall})
+    save_checkpoint(out / "model", learner_state, {**_meta(cfg, trainer, code), "wall_s": wall})
     metrics = training_metrics(read_jsonl(log), list(cfg.seeds))
     metrics.update({"method": cfg.method, "scenario": cfg.scenario, "traffic": cfg.traffic,
                     "adversarial": cfg.adversarial, "env_steps_per_seed": trainer.env_steps, "seeds": list(cfg.seeds),
                     "wall_s": round(wall, 2), "env_steps_per_s": round(trainer.env_steps * len(cfg.seeds) / max(wall, 1e-9), 1),
-                    "device": str(trainer.device), "member_usage": _usage(trainer), **provenance()})
+                    "device": str(trainer.device), "member_usage": _usage(trainer), **code})
     write_json(out / "metrics.json", metrics)
     _remove_resume(out / "resume")
     return metrics
