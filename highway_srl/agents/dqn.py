@@ -104,7 +104,6 @@ class DQNLearner:
         """
         cfg = self.config
         idx = members.to(self.device)
-        k = idx.shape[0]
         obs, next_obs = batch["obs"].to(self.device), batch["next_obs"].to(self.device)
         action, reward = batch["action"].to(self.device), batch["reward"].to(self.device)
         done = batch["done"].to(self.device)

@@ -289,3 +289,30 @@ class EpisodeCore:
         cur = torch.as_tensor(current_lane).long().reshape(1)
         adj = torch.as_tensor(adjacent_lane).long().reshape(1)
         return World.neighbours(view, cur, adj, d_max)
+
+
+class FrameQueries:
+    """The Backend protocol's queries, answered from a backend's `_frame` and `_core` (SUMO and highway-env)."""
+
+    _frame: Frame
+    _core: EpisodeCore
+
+    @property
+    def ego_lane(self) -> torch.Tensor:
+        return torch.tensor([int(self._frame.lane[0])])
+
+    @property
+    def ego_speed(self) -> torch.Tensor:
+        return torch.tensor([float(self._frame.v[0])], dtype=torch.float32)
+
+    @property
+    def state(self) -> WorldState:
+        """The current scene as a one-env WorldState (for renderings; read-only use)."""
+        return self._core.sync(self._frame)
+
+    def stage_flags(self) -> dict[str, torch.Tensor]:
+        return self._core.stage_flags()
+
+    def neighbours(self, current_lane: torch.Tensor, adjacent_lane: torch.Tensor, d_max: float = D_MAX_M) -> Snapshot:
+        """SV1..SV4 of the ego with World.neighbours' semantics (vehicle centres, lane by nearest centre)."""
+        return self._core.snapshot(self._frame, current_lane, adjacent_lane, d_max)

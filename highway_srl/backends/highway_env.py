@@ -25,10 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from highway_srl.backends.episode import EpisodeCore, Frame
-from highway_srl.constants import D_MAX_M, DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, EPISODE_STEPS, LANE_WIDTH_M, STYLES, V_MAX_MPS, VEHICLE_LENGTH_M
+from highway_srl.backends.episode import EpisodeCore, Frame, FrameQueries
+from highway_srl.constants import DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, EPISODE_STEPS, LANE_WIDTH_M, STYLES, V_MAX_MPS, VEHICLE_LENGTH_M
 from highway_srl.sim.road import EXIT_X, MERGE_X
-from highway_srl.sim.snapshot import Snapshot
 from highway_srl.sim.state import EXIT_INTENT, MERGE_INTENT, NO_INTENT
 from highway_srl.sim.traffic import (
     IDM_ACCEL_MPS2,
@@ -154,7 +153,7 @@ def env_config(scenario: str, max_steps: int, frames_per_step: int) -> dict:
     return cfg
 
 
-class HighwayEnvBackend:
+class HighwayEnvBackend(FrameQueries):
     """One highway-env episode of a scenario behind the Backend protocol (num_envs = 1, CPU).
 
     frames_per_step: highway-env physics frames per 0.125 s decision step (simulation_frequency = 8 x this;
@@ -419,26 +418,6 @@ class HighwayEnvBackend:
         f.lane[:] = self._core.lane_of(f.y)
         f.target_lane[:] = np.where(f.target_lane < 0, f.lane, f.target_lane)
 
-    # ------------------------------------------------------------------ queries
-    @property
-    def ego_lane(self) -> torch.Tensor:
-        return torch.tensor([int(self._frame.lane[0])])
-
-    @property
-    def ego_speed(self) -> torch.Tensor:
-        return torch.tensor([float(self._frame.v[0])], dtype=torch.float32)
-
-    @property
-    def state(self):
-        """The current scene as a one-env WorldState (for renderings; read-only use)."""
-        return self._core.sync(self._frame)
-
-    def stage_flags(self) -> dict[str, torch.Tensor]:
-        return self._core.stage_flags()
-
-    def neighbours(self, current_lane: torch.Tensor, adjacent_lane: torch.Tensor, d_max: float = D_MAX_M) -> Snapshot:
-        """SV1..SV4 of the ego with World.neighbours' semantics (vehicle centres, lane by nearest centre)."""
-        return self._core.snapshot(self._frame, current_lane, adjacent_lane, d_max)
 
     @property
     def frame(self) -> Frame:

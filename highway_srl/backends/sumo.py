@@ -31,7 +31,7 @@ from highway_srl.constants import (
     VEHICLE_LENGTH_M,
     VEHICLE_WIDTH_M,
 )
-from highway_srl.backends.episode import FAR_M, EpisodeCore, Frame
+from highway_srl.backends.episode import FAR_M, EpisodeCore, Frame, FrameQueries
 from highway_srl.backends.sumo_networks import EdgeSpec, edges_of, links_of, network_path, sumo_binary
 from highway_srl.sim.dynamics import HEADING_MAX_RAD
 from highway_srl.sim.snapshot import Snapshot
@@ -116,7 +116,7 @@ def routes_of(scenario: str) -> dict[str, list[str]]:
     return routes
 
 
-class SumoBackend:
+class SumoBackend(FrameQueries):
     """One SUMO simulation of a scenario behind the Backend protocol (num_envs = 1, CPU).
 
     api: "libsumo" (in-process, fast; one simulation per process: starting a second SumoBackend closes the
@@ -377,22 +377,6 @@ class SumoBackend:
         return ego, others
 
     # ------------------------------------------------------------------ queries
-    @property
-    def ego_lane(self) -> torch.Tensor:
-        return torch.tensor([int(self._frame.lane[0])])
-
-    @property
-    def ego_speed(self) -> torch.Tensor:
-        return torch.tensor([float(self._frame.v[0])], dtype=torch.float32)
-
-    @property
-    def state(self):
-        """The current scene as a one-env WorldState (for renderings; read-only use)."""
-        return self._core.sync(self._frame)
-
-    def stage_flags(self) -> dict[str, torch.Tensor]:
-        return self._core.stage_flags()
-
     def neighbours(self, current_lane: torch.Tensor, adjacent_lane: torch.Tensor, d_max: float = D_MAX_M) -> Snapshot:
         """SV1..SV4 of the ego with World.neighbours' semantics (vehicle centres, lane by nearest centre)."""
         self._check_open()
