@@ -298,6 +298,19 @@ class FrameQueries:
     _core: EpisodeCore
 
     @property
+    def frame(self) -> Frame:
+        """The vehicles after the last step in our Frenet frame (read-only use; vehicle 0 = ego)."""
+        return self._frame
+
+    @property
+    def episode(self) -> int:
+        return self._core.episode
+
+    @property
+    def seed(self) -> int:
+        return self._core.seed
+
+    @property
     def ego_lane(self) -> torch.Tensor:
         return torch.tensor([int(self._frame.lane[0])])
 

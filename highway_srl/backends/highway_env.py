@@ -418,19 +418,5 @@ class HighwayEnvBackend(FrameQueries):
         f.lane[:] = self._core.lane_of(f.y)
         f.target_lane[:] = np.where(f.target_lane < 0, f.lane, f.target_lane)
 
-
-    @property
-    def frame(self) -> Frame:
-        """The vehicles after the last step in our Frenet frame (read-only use; vehicle 0 = ego)."""
-        return self._frame
-
-    @property
-    def episode(self) -> int:
-        return self._core.episode
-
-    @property
-    def seed(self) -> int:
-        return self._core.seed
-
     def close(self) -> None:
         self.env.close()

@@ -383,19 +383,6 @@ class SumoBackend(FrameQueries):
         return self._core.snapshot(self._frame, current_lane, adjacent_lane, d_max)
 
     @property
-    def frame(self) -> Frame:
-        """The vehicles after the last step in our Frenet frame (read-only use; vehicle 0 = ego)."""
-        return self._frame
-
-    @property
-    def episode(self) -> int:
-        return self._core.episode
-
-    @property
-    def seed(self) -> int:
-        return self._core.seed
-
-    @property
     def sumo(self):
         """The libsumo module or TraCI connection, for inspection."""
         return self._api

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import torch
 
 from highway_srl.sim import World
 from highway_srl.sim.policies import idm_ego
@@ -49,34 +48,3 @@ def render_episode(run, scenario, traffic, adversarial, policy, seed, out: Path,
     gif = save_gif(world.road, frames, out)
     png = save_png(world.road, frames[len(frames) // 2], out.with_suffix(".png"))
     return [gif, png]
-
-
-def idm_summary(scenarios, traffic: str, episodes: int, seed: int = 0) -> list[dict]:
-    """Collision-free rate, mean speed and success of the built-in IDM ego, batched per scenario."""
-    rows = []
-    for scenario in scenarios:
-        world = World(scenario, traffic, num_envs=episodes, seed=seed)
-        alive = torch.ones(episodes, dtype=torch.bool)
-        collided = torch.zeros(episodes, dtype=torch.bool)
-        success = torch.zeros(episodes, dtype=torch.bool)
-        speed_sum = torch.zeros(episodes)
-        steps = torch.zeros(episodes)
-        for _ in range(world.max_steps):
-            lane, speed = idm_ego(world)
-            events = world.step(lane, speed)
-            speed_sum += torch.where(alive, world.ego_speed, 0.0)
-            steps += alive.float()
-            collided |= alive & events.collision
-            success |= alive & events.success
-            alive &= ~(events.terminated | events.truncated)
-            if not bool(alive.any()):
-                break
-        if scenario == "merge":
-            success = world.stage_flags()["merged"] & ~collided
-        rows.append({
-            "scenario": scenario, "traffic": traffic, "episodes": episodes,
-            "collision_free_rate": float((~collided).float().mean()),
-            "average_speed_mps": float((speed_sum / steps.clamp(min=1)).mean()),
-            "success_rate": float(success.float().mean()) if scenario in ("merge", "exit") else None,
-        })
-    return rows
