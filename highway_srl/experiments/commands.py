@@ -117,8 +117,10 @@ def _cmd_reproduce(args) -> int:
 
         check_device(args.device)
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip()) if args.methods else None
+    scenes = tuple(s.strip() for s in args.scenes.split(",") if s.strip()) if args.scenes else None
+    seeds = _seeds(args.seeds) if args.seeds else None
     state = reproduce(args.budget, args.out, jobs=args.jobs, backend=args.backend, address=args.address,
-                      device=args.device, methods=methods)
+                      device=args.device, methods=methods, scenes=scenes, seeds=seeds)
     failed = [j for j in state["jobs"].values() if j.get("status") == "failed"]
     return 1 if failed else 0
 
@@ -130,6 +132,19 @@ def _reproduce_epilog() -> str:
 
     return "budgets:\n" + "\n".join(textwrap.fill(b.expected_cost, 100, initial_indent=f"  {b.name:7s}",
                                                    subsequent_indent=" " * 9) for b in BUDGETS.values())
+
+
+def _cmd_transfer(args) -> int:
+    from highway_srl.experiments.transfer import TransferSettings, run_transfer
+
+    def names(text: str) -> tuple[str, ...]:
+        return tuple(x.strip() for x in text.split(",") if x.strip())
+
+    settings = TransferSettings(steps=args.steps, envs=args.envs, seed=args.seed, episodes=args.episodes)
+    run_transfer(args.out, settings, methods=names(args.methods), scenes=names(args.scenes),
+                 simulators=names(args.simulators), jobs=args.jobs)
+    print((Path(args.out) / "transfer.md").read_text())
+    return 0
 
 
 def _cmd_play(args) -> int:
@@ -209,4 +224,25 @@ def add_parsers(sub, scenario_args, positive) -> None:
                    "on a shared file system (the tables' files also travel back with each result)")
     p.add_argument("--device", default="cpu", help="cpu or cuda")
     p.add_argument("--methods", default=None, help="only these methods, comma-separated (default: all)")
+    p.add_argument("--scenes", default=None, help="only these scenes, comma-separated: two-lane, merge, exit, "
+                   "adv-two-lane, adv-merge, adv-exit, multi-lane, adv-multi-lane (default: all)")
+    p.add_argument("--seeds", default=None, help="seeds instead of the budget's, comma-separated, e.g. 0 or 0,1,2")
     p.set_defaults(func=_cmd_reproduce)
+
+    from highway_srl.experiments import transfer as tr
+
+    p = sub.add_parser("transfer", help="train in our simulator, deploy in SUMO and highway-env; a side-by-side table",
+                       description="Train each method on each scenario in our simulator (level C, one seed), then "
+                       "evaluate the same greedy policy on the same episode seeds in every simulator. Writes "
+                       "OUT/transfer.md and transfer.csv; run the same command again to resume.")
+    p.add_argument("--methods", default=",".join(tr.TRANSFER_METHODS))
+    p.add_argument("--scenes", default=",".join(tr.TRANSFER_SCENES))
+    p.add_argument("--simulators", default=",".join(tr.SIMULATORS))
+    p.add_argument("--steps", type=int, default=tr.TransferSettings.steps, help="training env steps per run")
+    p.add_argument("--envs", type=int, default=tr.TransferSettings.envs)
+    p.add_argument("--episodes", type=int, default=tr.TransferSettings.episodes,
+                   help="deployment episodes per simulator")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--jobs", type=positive, default=1, help="jobs at a time (worker processes, one thread each)")
+    p.add_argument("--out", default="results/transfer")
+    p.set_defaults(func=_cmd_transfer)

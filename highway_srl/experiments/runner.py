@@ -218,14 +218,22 @@ def _settings_of(config: dict) -> dict:
 
 def reproduce(budget: str, out: str | Path, jobs: int | None = None, backend: str = "local",
               address: str | None = None, device: str = "cpu", methods: tuple[str, ...] | None = None,
-              work: Work = run_job, log: Callable[[str], None] = print, report: bool = True) -> dict:
+              scenes: tuple[str, ...] | None = None, seeds: tuple[int, ...] | None = None, work: Work = run_job, log: Callable[[str], None] = print, report: bool = True) -> dict:
     """Run every pending job of the study at `budget` in `out`, then write the tables, figures and report.
 
+    scenes / seeds: a part of the study (say, two-lane only) or other seeds than the budget's; the seeds
+    become part of the budget's settings, so a folder is never resumed with different ones.
     Returns the final study.json content. `work` runs one job (run_job; tests pass stand-ins).
     """
+    from dataclasses import replace
+
     from highway_srl.experiments.study import default_jobs
 
     b = get_budget(budget)
+    if seeds is not None:
+        if not seeds or len(set(seeds)) != len(seeds) or any(s < 0 for s in seeds):
+            raise ValueError(f"--seeds must be distinct non-negative integers, got {','.join(map(str, seeds))}")
+        b = replace(b, seeds=tuple(seeds))
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; choose one of {', '.join(BACKENDS)}")
     if address and backend != "ray":
@@ -240,11 +248,12 @@ def reproduce(budget: str, out: str | Path, jobs: int | None = None, backend: st
             import ray  # noqa: F401
         except ImportError:
             raise ValueError("the ray backend needs Ray: pip install 'highway-srl[ray]'") from None
-    all_jobs = study_jobs(b, methods)
+    all_jobs = study_jobs(b, methods, scenes)
     out = Path(out)
     state = open_study(out, b)
     out.mkdir(parents=True, exist_ok=True)
     state["methods"] = list(methods) if methods else None
+    state["scenes"] = list(scenes) if scenes else None
     state["machine"] = machine(device)
     state.update(provenance())
     invocation = {"started": now(), "backend": backend, "jobs": workers, "device": device, "address": address,

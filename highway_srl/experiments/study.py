@@ -175,10 +175,12 @@ class Job:
         return Job(**d)
 
 
-def study_jobs(budget: Budget | str, methods: tuple[str, ...] | None = None) -> list[Job]:
+def study_jobs(budget: Budget | str, methods: tuple[str, ...] | None = None,
+               scenes: tuple[str, ...] | None = None) -> list[Job]:
     """Every job of the study at `budget`, each once, listing the artefacts it serves; most costly first.
 
     methods: restrict to these methods (ablations go with 'moe-rm-srl'); None: every method.
+    scenes: restrict to these scenes (keys of SCENES); None: every scene.
     """
     b = get_budget(budget) if isinstance(budget, str) else budget
     if methods is not None:
@@ -186,10 +188,15 @@ def study_jobs(budget: Budget | str, methods: tuple[str, ...] | None = None) -> 
         if unknown:
             raise ValueError(f"unknown method(s) {', '.join(map(repr, unknown))}; the study knows "
                              f"{', '.join(METHOD_LABELS)}")
+    if scenes is not None:
+        unknown = [s for s in scenes if s not in SCENES]
+        if unknown:
+            raise ValueError(f"unknown scene(s) {', '.join(map(repr, unknown))}; the study knows "
+                             f"{', '.join(SCENES)}")
     wanted: dict[tuple, set[str]] = {}
 
     def need(method: str, scene: str, artefact: str, options: tuple[str, ...] = ()) -> None:
-        if methods is None or method in methods:
+        if (methods is None or method in methods) and (scenes is None or scene in scenes):
             wanted.setdefault((method, scene, options), set()).add(artefact)
 
     for m in GROUP1_METHODS:

@@ -130,3 +130,23 @@ def test_a_study_made_with_other_budget_settings_is_refused(tmp_path, monkeypatc
     monkeypatch.setitem(study_mod.BUDGETS, "smoke", dataclasses.replace(study_mod.BUDGETS["smoke"], steps=3200))
     with pytest.raises(ValueError, match=r"made with other settings \(steps changed since\)"):
         reproduce("smoke", root, jobs=1, work=fakes.fake_work, methods=(OURS,), **QUIET)
+
+
+def test_a_part_of_the_study_runs_with_other_seeds_and_keeps_them(tmp_path, capsys):
+    """`--scenes two-lane --seeds 0` is the study's two-lane column (Group 1, Table 5) at one seed."""
+    root = tmp_path / "study"
+    state = reproduce("smoke", root, jobs=1, work=fakes.fake_work, scenes=("two-lane",), seeds=(3,),
+                      log=lambda s: None)
+    assert sorted(state["jobs"]) == sorted(f"two-lane/{m}" for m in
+                                           ("moe-rm-srl", "rl", "sr-rl", "rm-rl", "mp-rl", "lm-rl", "et-rl",
+                                            "rule-based"))
+    assert all(v["job"]["seeds"] == [3] for v in state["jobs"].values())
+    saved = read_json(root / "study.json")
+    assert saved["budget_config"]["seeds"] == [3] and saved["scenes"] == ["two-lane"]
+    assert "seeds 3 (1 run(s)" in (root / "report.md").read_text()
+    with pytest.raises(ValueError, match=r"other settings \(seeds changed since\)"):
+        reproduce("smoke", root, jobs=1, work=fakes.fake_work, scenes=("two-lane",), seeds=(0, 1), **QUIET)
+    for argv, words in ((["--scenes", "three-lane"], "unknown scene(s) 'three-lane'"),
+                        (["--seeds", "0,0"], "distinct non-negative")):
+        rc, err = _cli(capsys, "--budget", "smoke", *argv, "--out", str(tmp_path / "new"))
+        assert rc == 2 and len(err) == 1 and words in err[0], (argv, err)
