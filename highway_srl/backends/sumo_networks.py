@@ -34,7 +34,7 @@ from highway_srl.sim.road import EXIT_X, MERGE_X
 NET_DIR = Path(__file__).with_name("sumo")
 X_START_M = -400.0  # mainline start: room for the traffic behind the ego
 X_END_M = 1600.0  # mainline end: a 40 s episode at 10 m/s plus the traffic ahead fits with room to spare
-OFF_RAMP_END_M = 450.0  # the off-ramp edge runs past x3_suc = 300 so success is reached before its end
+OFF_RAMP_END_M = 450.0  # the off-ramp edge runs past x3_suc (220 m) so success is reached before its end
 
 
 @dataclass(frozen=True)

@@ -57,7 +57,9 @@ class Road:
 # Zone lengths are not given by the paper; these are chosen so that an ego at 5-10 m/s reaches each zone
 # well inside the 320-step (40 s) episode and has several seconds in the merging / diverging zone.
 MERGE_X = {"x0": 0.0, "x1": 60.0, "x2": 160.0, "x3": INF}
-EXIT_X = {"x0": 0.0, "x1": 100.0, "x2": 200.0, "x3_suc": 300.0, "x3_fail": 300.0}
+# Short enough that level-C traffic (about 6.5 m/s) reaches the end within the 40 s episode (210 m from the
+# ego's start at x = 10 needs 5.3 m/s on average); see docs/paper-notes.md, "Roads".
+EXIT_X = {"x0": 0.0, "x1": 60.0, "x2": 140.0, "x3_suc": 220.0, "x3_fail": 220.0}
 
 
 def make_road(scenario: str) -> Road:

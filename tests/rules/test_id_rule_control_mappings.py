@@ -13,7 +13,7 @@ from highway_srl.rules import (
     target_speed,
 )
 from highway_srl.rules.safe_actions import FASTER, IDLE, LANE_CHANGE, SLOWER
-from highway_srl.sim.road import make_road
+from highway_srl.sim.road import EXIT_X, make_road
 
 L = lambda *v: torch.tensor(v, dtype=torch.long)  # noqa: E731
 X = lambda *v: torch.tensor(v, dtype=torch.float32)  # noqa: E731
@@ -66,8 +66,9 @@ def test_id_mapping_merge_on_ramp_merging_zone_and_stability_zone():
 
 
 def test_id_mapping_exit_preparation_diverging_off_ramp_and_continuation():
-    road = make_road("exit")  # preparation [0, 100), diverging [100, 200), off-ramp / continuation [200, 300)
-    ids = id_mapping(road, X(50.0, 150.0, 150.0, 150.0, 250.0, 250.0), L(1, 1, 0, 2, 2, 1))
+    road = make_road("exit")  # preparation [0, x1), diverging [x1, x2), off-ramp / continuation [x2, x3)
+    prep, div, after = 0.5 * EXIT_X["x1"], 0.5 * (EXIT_X["x1"] + EXIT_X["x2"]), 0.5 * (EXIT_X["x2"] + EXIT_X["x3_suc"])
+    ids = id_mapping(road, X(prep, div, div, div, after, after), L(1, 1, 0, 2, 2, 1))
     p = ids.primary
     assert (p.base_lane[0], p.c_id[0], p.adjacent_lane[0]) == (0, 1, 0)  # preparation: standard
     assert (p.base_lane[1], p.c_id[1], p.adjacent_lane[1]) == (1, 0, 2)  # diverging: current local 0, right adjacent
@@ -79,8 +80,8 @@ def test_id_mapping_exit_preparation_diverging_off_ramp_and_continuation():
 
 
 def test_id_mapping_missing_lane_gets_default_vehicles():
-    # exit preparation zone, lane 1 would see lane 2 only from x1 = 100 on
-    ids = id_mapping(make_road("exit"), X(50.0), L(1), target_lane=L(2))
+    # exit preparation zone, lane 1 would see lane 2 only from x1 on
+    ids = id_mapping(make_road("exit"), X(0.5 * EXIT_X["x1"]), L(1), target_lane=L(2))
     assert ids.primary.adjacent_lane.tolist() == [-1] and ids.primary.default_adjacent.tolist() == [True]
 
 

@@ -42,5 +42,5 @@ def test_observation_is_finite_and_inside_documented_ranges_even_for_wild_inputs
 def test_ego_progress_is_signed_distance_to_x2_over_100m():
     merge, exit_ = make_road("merge"), make_road("exit")
     assert ego_progress_feature(merge, torch.tensor([60.0, 160.0, 900.0])).tolist() == [1.0, 0.0, -3.0]
-    assert ego_progress_feature(exit_, torch.tensor([150.0])).tolist() == [0.5]
+    assert ego_progress_feature(exit_, torch.tensor([exit_.zones["diverging"][1] - 50.0])).tolist() == [0.5]
     assert ego_progress_feature(make_road("two-lane"), torch.tensor([1234.0])).tolist() == [0.0]

@@ -102,7 +102,8 @@ def test_merge_on_ramp_uses_default_adjacent_vehicles_and_cannot_change_lanes(ha
 
 def test_exit_diverging_zone_and_off_ramp_queries(hand_world):
     road = make_road("exit")
-    scenes = [{"ego": (150.0, W, 8.0, 0.0), "svs": []}, {"ego": (250.0, 2 * W, 8.0, 0.0), "svs": []}]
+    diverging, off_ramp = sum(road.zones["diverging"]) / 2, sum(road.zones["off_ramp"]) / 2
+    scenes = [{"ego": (diverging, W, 8.0, 0.0), "svs": []}, {"ego": (off_ramp, 2 * W, 8.0, 0.0), "svs": []}]
     world = hand_world(road, scenes)
     layer = SafetyLayer(road)
     p = layer.observe(world).primary
