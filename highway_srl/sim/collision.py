@@ -31,11 +31,15 @@ def boxes_overlap(
     hl, hw = 0.5 * length_m, 0.5 * width_m
     ca, sa, cb, sb = torch.cos(ha), torch.sin(ha), torch.cos(hb), torch.sin(hb)
     dx, dy = xb - xa, yb - ya
-    overlap = torch.ones_like(dx, dtype=torch.bool)
-    for nx, ny in ((ca, sa), (-sa, ca), (cb, sb), (-sb, cb)):
-        ra = hl * (ca * nx + sa * ny).abs() + hw * (-sa * nx + ca * ny).abs()
-        rb = hl * (cb * nx + sb * ny).abs() + hw * (-sb * nx + cb * ny).abs()
-        overlap &= (dx * nx + dy * ny).abs() <= ra + rb
+    # On its own axes a box projects to hl or hw; on the other box's axes to hl|c| + hw|s| or hl|s| + hw|c|
+    # with c, s = cos, sin of the heading difference. So both long axes share one radius sum, both short
+    # axes another.
+    c, s = (ca * cb + sa * sb).abs(), (sa * cb - ca * sb).abs()
+    r_long, r_short = hl + hl * c + hw * s, hw + hl * s + hw * c
+    overlap = (dx * ca + dy * sa).abs() <= r_long
+    overlap &= (dy * ca - dx * sa).abs() <= r_short
+    overlap &= (dx * cb + dy * sb).abs() <= r_long
+    overlap &= (dy * cb - dx * sb).abs() <= r_short
     return overlap
 
 

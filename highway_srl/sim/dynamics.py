@@ -461,7 +461,12 @@ def ego_collision(s: WorldState, road: Road, tables: LaneTables, nb: Neighbours)
     j = torch.cat([nb.leader[:, :, 0].T, torch.stack(followers, 1)], 1)  # (B, 2K)
     x_pad, y_pad, h_pad = pad(s.x, FAR_M), pad(s.y, 0.0), pad(s.heading, 0.0)
     g = lambda t: torch.gather(t, 1, j)  # noqa: E731
-    hit = (boxes_overlap(s.x[:, :1], s.y[:, :1], s.heading[:, :1], g(x_pad), g(y_pad), g(h_pad)) & (j < n)).any(1)
+    xj, yj = g(x_pad), g(y_pad)
+    near = ((xj - s.x[:, :1]).abs() < CONTACT_REACH_M) & ((yj - s.y[:, :1]).abs() < CONTACT_REACH_M) & (j < n)
+    if s.x.device.type != "cpu" or bool(near.any()):  # on CPU a branch is free and contacts are rare
+        hit = (boxes_overlap(s.x[:, :1], s.y[:, :1], s.heading[:, :1], xj, yj, g(h_pad)) & near).any(1)
+    else:
+        hit = torch.zeros_like(near[:, 0])
     x, y, w = s.x[:, 0], s.y[:, 0], road.lane_width_m
     e = lateral_half_extent(s.heading[:, 0])
     lo, hi = y - e, y + e
