@@ -148,7 +148,7 @@ class Neighbours:
 
 def find_neighbours(s: WorldState, road: Road) -> Neighbours:
     occ = occupancy(s.y, approx_half_width(s.heading), s.lane, s.target_lane, road.num_lanes, road.lane_width_m)
-    s.order = sorted_order(s.x, s.order)
+    s.order.copy_(sorted_order(s.x, s.order))
     leader, occ_sorted = lane_leaders(occ, s.order)
     behind = follower_keys(occ_sorted, s.order)
     return Neighbours(occ, leader, pad(s.x, FAR_M), pad(s.v, 0.0), behind, inverse_order(s.order))
@@ -379,10 +379,10 @@ def advance(s: WorldState, road: Road, tables: LaneTables, layout: Layout, targe
     v_new = (s.v + accel * DT_S).clamp(min=0.0)
     v_new[:, 0] = v_new[:, 0].clamp(max=V_MAX_MPS)
     v_mid = 0.5 * (s.v + v_new)
-    x_old = s.x
-    s.x = s.x + v_mid * DT_S  # along the lane; corrected below for the few cars that are turned
+    x_old = s.x.clone()
+    s.x.add_(v_mid * DT_S)  # along the lane; corrected below for the few cars that are turned
     _lateral(s, road, v_mid, x_old)
-    s.v = v_new
+    s.v.copy_(v_new)
     return sv_contacts(s, near, nb.leader), nb
 
 

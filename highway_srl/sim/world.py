@@ -110,6 +110,7 @@ class World:
         )
 
     # ------------------------------------------------------------------ episodes
+    @torch.inference_mode()
     def reset(self, mask: torch.Tensor | None = None) -> None:
         """Start new episodes in the envs where mask (B,) is True (all envs if None)."""
         s = self.state
@@ -119,8 +120,13 @@ class World:
         fresh = spawn(self.road, self.level, self.layout, s.seed[idx], s.episode[idx] + 1, self.style)
         s.index_put(idx, fresh)
 
+    @torch.inference_mode()
     def step(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
-        """Advance every env by δt with the ego tracking (target lane (B,) long, target speed (B,) m/s)."""
+        """Advance every env by δt with the ego tracking (target lane (B,) long, target speed (B,) m/s).
+
+        Runs in inference mode (a fifth of a single env's step is autograd bookkeeping otherwise); the
+        state is updated in place, so its tensors stay ordinary ones that callers may edit. The returned
+        events are inference tensors: read them, combine them, or clone them before editing in place."""
         s = self.state
         target_lane = torch.as_tensor(target_lane, device=self.device).long().reshape(self.num_envs)
         target_speed = torch.as_tensor(target_speed, device=self.device, dtype=torch.float32).reshape(self.num_envs)
