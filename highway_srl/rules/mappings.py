@@ -91,6 +91,26 @@ def crossing_allowed(road: Road, lane_a: torch.Tensor, lane_b: torch.Tensor, x: 
     return neighbours & lane_exists(road, lane_a, x) & lane_exists(road, lane_b, x) & (lo[k] <= x) & (x < hi[k])
 
 
+EGO_CHANGE_TIME_S = 3.0  # the ego's controller centres it in the next lane within 3 s (tests/sim)
+WINDOW_MARGIN_M = 1.0
+
+
+def change_fits_window(road: Road, ego_lane: torch.Tensor, target_lane: torch.Tensor, ego_x: torch.Tensor,
+                       ego_y: torch.Tensor, speed: torch.Tensor, change_time_s: float = EGO_CHANGE_TIME_S,
+                       margin_m: float = WINDOW_MARGIN_M) -> torch.Tensor:
+    """(B,) bool: a change from ego_lane to target_lane (global) ends before its change window closes.
+
+    The control mapping (Eq. 34) only knows the current lane pair; the road's window (the merging zone's end,
+    the exit's gore) is a hard boundary an ego straddling the lanes would cross. The ego still has to cover
+    speed * change_time_s * (remaining lateral distance / lane width) metres: its centre must be inside the
+    window, both lanes present, that far (+ margin) ahead. See docs/paper-notes.md, "control mapping".
+    """
+    w = road.lane_width_m
+    remaining = ((target_lane.to(ego_y.dtype) * w - ego_y).abs() / w).clamp(max=1.0)
+    ahead = ego_x + speed * change_time_s * remaining + margin_m
+    return crossing_allowed(road, ego_lane, target_lane, ahead)
+
+
 def _base_lane(road: Road, ego_x: torch.Tensor, ego_lane: torch.Tensor) -> torch.Tensor:
     """The pair each scenario's prose assigns when the ego keeps its lane (§3.3, ID mapping)."""
     if road.scenario == "two-lane":

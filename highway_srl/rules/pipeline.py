@@ -32,6 +32,7 @@ from highway_srl.rules.mappings import (
     IdMapping,
     LaneModel,
     Vehicles,
+    change_fits_window,
     crossing_allowed,
     fill_defaults,
     id_mapping,
@@ -126,7 +127,9 @@ class SafetyLayer:
 
     literal_sd: use the printed Eqs. 21-27 instead of the sound safe distance; grouped_rule_mapping: the
     Eq. 32 reading (see mappings.rule_mapping); hold_lane_change: Faster/Idle/Slower keep the previous
-    target lane ("the lateral plan remains unchanged") instead of the literal Eq. 34 T* = C_ID.
+    target lane ("the lateral plan remains unchanged") instead of the literal Eq. 34 T* = C_ID;
+    finish_in_window: a lane change is started or held only if it can end before the road's change window
+    closes (mappings.change_fits_window).
     """
 
     def __init__(
@@ -139,6 +142,7 @@ class SafetyLayer:
         grouped_rule_mapping: bool = True,
         hold_lane_change: bool = True,
         brake_while_changing: bool = True,
+        finish_in_window: bool = True,
         standstill_gap_m: float = STANDSTILL_GAP_M,
         straddle_grouping: bool = True,
         reaction_s: float = DT_S,
@@ -152,6 +156,7 @@ class SafetyLayer:
         self.grouped = grouped_rule_mapping
         self.hold_lane_change = hold_lane_change
         self.brake_while_changing = brake_while_changing
+        self.finish_in_window = finish_in_window
         self.standstill_gap_m = standstill_gap_m
         self.straddle_grouping = straddle_grouping
         self.reaction_s, self.ego_brake, self.sv_brake = reaction_s, ego_brake_mps2, sv_brake_mps2
@@ -297,12 +302,15 @@ class SafetyLayer:
         lane = m.lanes.base_lane + t_local
         ego_lane = snap.ego_lane.long()
         ok = (lane == ego_lane) | crossing_allowed(self.road, ego_lane, lane, snap.ego_x)
+        speed_now = torch.hypot(snap.ego_vx, snap.ego_vy)
+        if self.finish_in_window:  # a change that cannot end before the window closes is not started / held
+            ok &= (lane == ego_lane) | change_fits_window(self.road, ego_lane, lane, snap.ego_x, snap.ego_y, speed_now)
         lane = torch.where(ok, lane, ego_lane)
         self.target_lane = lane
-        speed = target_speed(action, torch.hypot(snap.ego_vx, snap.ego_vy))
+        speed = target_speed(action, speed_now)
         # Table 1 allows LaneChange while R*_SV1 = 0 (rows 9, 13), but the lateral move takes ~2.5 s during
         # which the ego is still behind SV1: it changes lanes braking as Slower would (docs/paper-notes.md).
         if self.brake_while_changing:
             brake = (action == LANE_CHANGE) & ~m.r_star[:, 0]
-            speed = torch.where(brake, target_speed(torch.full_like(action, SLOWER), torch.hypot(snap.ego_vx, snap.ego_vy)), speed)
+            speed = torch.where(brake, target_speed(torch.full_like(action, SLOWER), speed_now), speed)
         return lane, speed

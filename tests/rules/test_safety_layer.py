@@ -149,3 +149,33 @@ def test_reset_forgets_the_target_of_reset_envs_only(hand_world):
 def test_act_before_observe_is_an_error():
     with pytest.raises(RuntimeError, match="observe"):
         SafetyLayer(make_road("two-lane")).act(torch.tensor([0]))
+
+
+def test_a_lane_change_is_started_only_if_it_ends_before_the_window_closes(hand_world):
+    """Control mapping (Eq. 34) with the road's change window: near the exit's gore (x2) a LaneChange
+    keeps the lane unless the change can end in time (the remaining-distance scaling: the next test)."""
+    road = make_road("exit")
+    x1, x2 = road.zones["diverging"]
+    scenes = [{"ego": (x1 + 10.0, W, 8.0, 0.0), "svs": []},  # plenty of room: 8 m/s x 3 s = 24 m
+              {"ego": (x2 - 15.0, W, 8.0, 0.0), "svs": []},  # 15 m left: no
+              {"ego": (x2 - 15.0, W, 2.0, 0.0), "svs": []}]  # slowly: 6 m needed, yes
+    world = hand_world(road, scenes)
+    layer = SafetyLayer(road)
+    layer.observe(world)
+    lane, _ = layer.act(torch.tensor([LANE_CHANGE] * 3))
+    assert lane.tolist() == [2, 1, 2]
+    literal = SafetyLayer(road, finish_in_window=False)
+    literal.observe(world)
+    assert literal.act(torch.tensor([LANE_CHANGE] * 3))[0].tolist() == [2, 2, 2]
+
+
+def test_change_fits_window_scales_with_the_lateral_distance_left():
+    from highway_srl.rules.mappings import change_fits_window
+
+    road = make_road("merge")
+    _, end = road.zones["merging"]
+    x = torch.full((4,), end - 10.0)
+    y = torch.tensor([2 * W, 2 * W, 1.5 * W, 1.5 * W])  # on the ramp; half-way across
+    speed = torch.tensor([5.0, 2.0, 5.0, 7.0])  # needs 15+1, 6+1, 7.5+1, 10.5+1 m
+    fits = change_fits_window(road, torch.full((4,), 2), torch.full((4,), 1), x, y, speed)
+    assert fits.tolist() == [False, True, True, False]
