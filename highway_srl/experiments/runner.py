@@ -90,9 +90,18 @@ Work = Callable[..., dict]  # run_job's signature; tests pass cheaper stand-ins
 
 
 # ----------------------------------------------------------------------------------------------- backends
+def worker_threads(workers: int) -> int:
+    """Torch threads per job: OMP_NUM_THREADS if set (the user shares the machine with other work), else the
+    cores divided among the workers."""
+    env = os.environ.get("OMP_NUM_THREADS", "")
+    if env.isdigit() and int(env) > 0:
+        return int(env)
+    return max(1, (os.cpu_count() or 1) // max(1, workers))
+
+
 def run_local(jobs: list[Job], root: Path, device: str, workers: int, on_result, work: Work = run_job) -> None:
     """`workers` worker processes (spawned, reused across jobs); one job runs inline when workers == 1."""
-    threads = max(1, (os.cpu_count() or 1) // max(1, workers))
+    threads = worker_threads(workers)
     if workers <= 1 or len(jobs) <= 1:
         for job in jobs:
             on_result(job, work(job.to_dict(), str(root), device, threads))

@@ -150,3 +150,13 @@ def test_a_part_of_the_study_runs_with_other_seeds_and_keeps_them(tmp_path, caps
                         (["--seeds", "0,0"], "distinct non-negative")):
         rc, err = _cli(capsys, "--budget", "smoke", *argv, "--out", str(tmp_path / "new"))
         assert rc == 2 and len(err) == 1 and words in err[0], (argv, err)
+
+
+def test_workers_take_omp_num_threads_when_it_is_set(monkeypatch):
+    from highway_srl.experiments.runner import worker_threads
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    assert worker_threads(1) == 1
+    monkeypatch.delenv("OMP_NUM_THREADS")
+    monkeypatch.setattr("os.cpu_count", lambda: 8)
+    assert worker_threads(2) == 4 and worker_threads(16) == 1
