@@ -227,7 +227,8 @@ def _settings_of(config: dict) -> dict:
 
 def reproduce(budget: str, out: str | Path, jobs: int | None = None, backend: str = "local",
               address: str | None = None, device: str = "cpu", methods: tuple[str, ...] | None = None,
-              scenes: tuple[str, ...] | None = None, seeds: tuple[int, ...] | None = None, work: Work = run_job, log: Callable[[str], None] = print, report: bool = True) -> dict:
+              scenes: tuple[str, ...] | None = None, seeds: tuple[int, ...] | None = None,
+              work: Work = run_job, log: Callable[[str], None] = print, report: bool = True) -> dict:
     """Run every pending job of the study at `budget` in `out`, then write the tables, figures and report.
 
     scenes / seeds: a part of the study (say, two-lane only) or other seeds than the budget's; the seeds
