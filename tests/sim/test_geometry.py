@@ -76,6 +76,8 @@ def test_boxes_overlap_agrees_with_exact_polygon_clipping(a, b):
     if shared > 1e-6:
         expected = True
     else:
+        # a sliver of overlap (0 < area <= 1e-6) is touching too; poly_gap is only meaningful for disjoint boxes
+        assume(shared == 0.0)
         gap = min(poly_gap(pa, pb), poly_gap(pb, pa))
         assume(gap > 1e-4)  # touching boxes are a matter of convention
         expected = False
@@ -117,3 +119,10 @@ def test_half_widths_bound_the_rotated_box(h):
     assert float(lateral_half_extent(torch.tensor(h, dtype=torch.float64))) == pytest.approx(exact, abs=1e-9)
     approx = float(approx_half_width(torch.tensor(h, dtype=torch.float64)))
     assert exact - 1e-9 <= approx <= exact + 0.1
+
+
+def test_boxes_overlap_sees_a_corner_poking_half_a_millimetre_in():
+    """The case hypothesis found: A's corner 0.6 mm inside B's edge is an overlap (area 4e-7 m²)."""
+    t = lambda *v: torch.tensor(v, dtype=torch.float64)  # noqa: E731
+    assert bool(boxes_overlap(t(0.0), t(0.0), t(1.0390625), t(0.0), t(3.661275981070233), t(0.0)))
+    assert not bool(boxes_overlap(t(0.0), t(0.0), t(1.0390625), t(0.0), t(3.663), t(0.0)))
