@@ -25,7 +25,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
-from highway_srl.experiments.runs import provenance, read_json, write_json
+from highway_srl.experiments.runs import open_state, provenance, read_json, write_json
 from highway_srl.experiments.study import Budget, Job, get_budget, job_availability, study_jobs
 
 BACKENDS = ("local", "ray")
@@ -194,12 +194,8 @@ def _cpu_model() -> str:
 
 def open_study(out: Path, budget: Budget) -> dict:
     """The study.json of `out`, created if new; one-line errors for a folder that holds something else."""
-    path = out / STUDY_FILE
-    if path.exists():
-        try:
-            state = read_json(path)
-        except ValueError as err:
-            raise ValueError(f"{path} is damaged ({err}); move it away to start the study afresh") from None
+    state = open_state(out, STUDY_FILE, "study")
+    if state is not None:
         if state.get("budget") != budget.name:
             raise ValueError(f"--out {str(out)!r} holds a study of budget {state.get('budget')!r}, not "
                              f"{budget.name!r}; choose another --out or --budget {state.get('budget')}")
@@ -209,8 +205,6 @@ def open_study(out: Path, budget: Budget) -> dict:
             raise ValueError(f"--out {str(out)!r} holds a {budget.name} study made with other settings "
                              f"({', '.join(changed)} changed since); choose another --out")
         return state
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise ValueError(f"--out {str(out)!r} exists and holds no study ({STUDY_FILE}); choose an empty or new folder")
     return {"kind": "highway-srl study", "budget": budget.name, "budget_config": vars(budget).copy(),
             "created": now(), "invocations": [], "jobs": {}, **provenance()}
 

@@ -45,6 +45,20 @@ def read_json(path: Path) -> dict:
         raise ValueError(f"{path} is not valid JSON ({err.msg} at line {err.lineno})") from None
 
 
+def open_state(root: Path, name: str, what: str) -> dict | None:
+    """The state file `name` of a study folder, None if the folder is new (empty or missing); one-line
+    errors for a damaged file or a folder that holds something else."""
+    path = root / name
+    if path.exists():
+        try:
+            return read_json(path)
+        except ValueError as err:
+            raise ValueError(f"{path} is damaged ({err}); move it away to start afresh") from None
+    if root.exists() and (not root.is_dir() or any(root.iterdir())):
+        raise ValueError(f"--out {str(root)!r} exists and holds no {what} ({name}); choose an empty or new folder")
+    return None
+
+
 def run_folder(path: str | Path) -> Path:
     p = Path(path)
     if not p.is_dir():

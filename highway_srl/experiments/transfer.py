@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Callable
 
 from highway_srl.constants import TRAFFIC_LEVELS
-from highway_srl.experiments.runs import provenance, read_json, write_json
+from highway_srl.experiments.runs import open_state, provenance, read_json, write_json
 from highway_srl.experiments.study import METHOD_LABELS, SCENES, Job
 from highway_srl.experiments.tables import Column, Table
 
@@ -169,20 +169,13 @@ def run_transfer(out: str | Path, settings: TransferSettings = TransferSettings(
 
 
 def _open(root: Path, settings: TransferSettings) -> dict:
-    path = root / STATE_FILE
-    if path.exists():
-        try:
-            state = read_json(path)
-        except ValueError as err:
-            raise ValueError(f"{path} is damaged ({err}); move it away to start afresh") from None
+    state = open_state(root, STATE_FILE, "transfer study")
+    if state is not None:
         if state.get("settings") != asdict(settings):
             changed = sorted(k for k, v in asdict(settings).items() if state.get("settings", {}).get(k) != v)
             raise ValueError(f"--out {str(root)!r} holds a transfer study made with other settings "
                              f"({', '.join(changed)}); choose another --out")
         return state
-    if root.exists() and (not root.is_dir() or any(root.iterdir())):
-        raise ValueError(f"--out {str(root)!r} exists and holds no transfer study ({STATE_FILE}); "
-                         "choose an empty or new folder")
     return {"kind": "highway-srl transfer study", "settings": asdict(settings), "created": time.strftime(
         "%Y-%m-%dT%H:%M:%S%z"), "jobs": {}}
 
