@@ -1,0 +1,5 @@
+import sys
+from pathlib import Path
+
+# pin_data is importable by name (the suite runs with --import-mode=importlib, no packages under tests/)
+sys.path.insert(0, str(Path(__file__).parent))

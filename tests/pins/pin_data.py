@@ -1,0 +1,108 @@
+"""Behaviour pins: fingerprints of the simulator + rule layer and of a short training run of every method.
+
+Written before the structure refactor (issue: one rollout, one registry, scenario specs) on the code it
+refactors, so that a refactor that changes any number is caught. A deliberate behaviour change updates
+the golden file with `python -m tests.pins.pin_data --write` and says why in its commit.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from pathlib import Path
+
+import torch
+
+GOLDEN = Path(__file__).with_name("golden.json")
+SCENARIOS = ("two-lane", "multi-lane", "merge", "exit")
+PIN_STEPS = 400
+PIN_ENVS = 16
+
+
+def trajectory_hash(scenario: str, adversarial: bool, steps: int = PIN_STEPS, envs: int = PIN_ENVS) -> str:
+    """sha256 over the world state, the step events and the rule layer's view after every step of
+    `envs` level-C envs driven by a fixed action pattern through the mapped rule layer (with resets)."""
+    from highway_srl.rules import SafetyLayer
+    from highway_srl.sim import World
+
+    world = World(scenario, "C", adversarial, envs, "cpu", seed=7)
+    layer = SafetyLayer(world.road)
+    h = hashlib.sha256()
+    env = torch.arange(envs)
+    for t in range(steps):
+        step = layer.observe(world)
+        action = (env + t // 3) % 4
+        lane, speed = layer.act(action, step.two_models & (env % 2 == 0))
+        events = world.step(lane, speed)
+        for name in sorted(vars(world.state)):
+            h.update(vars(world.state)[name].contiguous().numpy().tobytes())
+        for name in ("collision", "success", "failure", "terminated", "truncated", "sv_collisions"):
+            h.update(getattr(events, name).contiguous().numpy().tobytes())
+        h.update(step.primary.obs.contiguous().numpy().tobytes())
+        h.update(step.primary.mask.contiguous().numpy().tobytes())
+        done = events.terminated | events.truncated
+        if bool(done.any()):
+            world.reset(done)
+            layer.reset(done)
+    return h.hexdigest()
+
+
+PIN_METHODS = (
+    ("moe-rm-srl", {}), ("moe-rm-srl", {"no_mapping": True}), ("moe-rm-srl", {"no_moe": True}),
+    ("moe-rm-srl", {"no_rm": True}), ("rl", {}), ("sr-rl", {}), ("rm-rl", {}), ("mp-rl", {}), ("lm-rl", {}),
+    ("et-rl", {}), ("rule-based", {}),
+)
+
+
+def method_fingerprint(method: str, options: dict, tmp: Path) -> dict:
+    """A short train (1300 env steps, 4 envs: every env ends an episode, updates from step 128) and a 6-episode evaluation at level C;
+    returns the training metrics, a hash of the saved model and the evaluation summary."""
+    from highway_srl.agents.dqn import DQNConfig
+    from highway_srl.agents.trainer import TrainConfig
+    from highway_srl.experiments.evaluate import evaluate_run
+    from highway_srl.experiments.train import train_run
+
+    name = method + "".join(f"-{k}" for k in sorted(options))
+    out = tmp / name
+    cfg = TrainConfig(method=method, scenario="two-lane", traffic="C", steps=1300, envs=4, seeds=(0,),
+                      options=dict(options), dqn=DQNConfig(learning_starts=128, batch_size=32, buffer_capacity=4096, total_steps=1300))
+    train_run(cfg, out, progress=False)
+    metrics = json.loads((out / "metrics.json").read_text())
+    keep = {k: metrics[k] for k in ("per_seed", "mean", "member_usage")}
+    keep["episodes.jsonl"] = hashlib.sha256((out / "episodes.jsonl").read_bytes()).hexdigest()
+    model = hashlib.sha256()
+    for f in sorted((out / "model").glob("*.safetensors")):
+        from safetensors.torch import load_file
+
+        tensors = load_file(f)
+        for k in sorted(tensors):
+            model.update(k.encode())
+            model.update(tensors[k].contiguous().numpy().tobytes())
+    report = evaluate_run(out, traffics=["C"], episodes=6)
+    level = report["levels"]["C"]
+    return {"train": keep, "model": model.hexdigest(),
+            "eval": {k: level[k] for k in ("C_r", "avg_speed", "R_r")}}
+
+
+def compute(tmp: Path) -> dict:
+    out = {"trajectories": {}, "methods": {}}
+    for scenario in SCENARIOS:
+        for adversarial in (False, True):
+            out["trajectories"][f"{scenario}/{'adv' if adversarial else 'nom'}"] = trajectory_hash(scenario, adversarial)
+    for method, options in PIN_METHODS:
+        key = method + "".join(f"+{k}" for k in sorted(options))
+        out["methods"][key] = method_fingerprint(method, options, tmp)
+    return out
+
+
+if __name__ == "__main__":
+    import tempfile
+
+    torch.set_num_threads(1)
+    with tempfile.TemporaryDirectory() as d:
+        data = compute(Path(d))
+    text = json.dumps(data, indent=1, sort_keys=True)
+    if "--write" in sys.argv:
+        GOLDEN.write_text(text + "\n")
+    print(text)
