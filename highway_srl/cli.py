@@ -15,32 +15,32 @@ from highway_srl import __version__
 from highway_srl.constants import SCENARIOS, TRAFFIC_LEVELS
 
 
-class UserError(ValueError):
-    """A problem with what the user asked for; printed as one line."""
+class Parser(argparse.ArgumentParser):
+    """argparse with its errors as one line (the usage block stays in --help)."""
 
-
-def _positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message}\n")
 
 
 def _scenario(p: argparse.ArgumentParser, default: str | None = "two-lane") -> None:
+    from highway_srl.experiments.commands import level
+
     p.add_argument("--scenario", default=default, help=f"one of {', '.join(SCENARIOS)}")
-    p.add_argument("--traffic", default="C", help=f"traffic level, one of {', '.join(TRAFFIC_LEVELS)}")
+    p.add_argument("--traffic", type=level, default="C", help=f"traffic level, one of {', '.join(TRAFFIC_LEVELS)}")
     p.add_argument("--adversarial", action="store_true", help="group-3 adversarial cut-ins")
 
 
 def _cmd_render(args) -> int:
     from highway_srl.experiments.episodes import render_episode
+    from highway_srl.experiments.runs import check_output_folder, run_folder
 
+    if args.run is not None:
+        run_folder(args.run)
+    check_output_folder(Path(args.out).parent)
     paths = render_episode(
         run=args.run, scenario=args.scenario, traffic=args.traffic, adversarial=args.adversarial,
         policy=args.policy, seed=args.seed, out=Path(args.out), steps=args.steps, backend=args.backend,
+        progress=not args.quiet,
     )
     for p in paths:
         print(p)
@@ -51,6 +51,7 @@ def _cmd_bench(args) -> int:
     from highway_srl.experiments import bench
 
     if args.what == "sim":
+        bench.check_sim_memory(args.scenario, args.traffic, args.envs, args.device, args.adversarial)
         result = bench.bench_sim(args.scenario, args.traffic, args.envs, args.steps, args.device, args.adversarial)
         line = (f"{result['scenario']} level {result['traffic']}: {result['envs']} envs x {result['steps']} steps on "
                 f"{result['device']}: {result['env_steps_per_s']:,.0f} env-steps/s = "
@@ -68,7 +69,10 @@ def _cmd_bench(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="highway-srl", description="Safe RL of autonomous highway driving (MoE-RM-SRL).")
+    from highway_srl.experiments import commands  # the training / evaluation / study commands, argument types
+    from highway_srl.experiments.commands import non_negative, positive
+
+    parser = Parser(prog="highway-srl", description="Safe RL of autonomous highway driving (MoE-RM-SRL).")
     parser.add_argument("--version", action="version", version=f"highway-srl {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -77,37 +81,40 @@ def build_parser() -> argparse.ArgumentParser:
     _scenario(p, default=None)
     p.add_argument("--policy", default="idm", help="built-in ego when no run is given: idm")
     p.add_argument("--backend", default="ours", help="simulator: ours, sumo, highway-env")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--steps", type=_positive, default=320)
+    p.add_argument("--seed", type=non_negative, default=0)
+    p.add_argument("--steps", type=positive, default=320)
     p.add_argument("--out", default="episode.gif", help="GIF path; the PNG goes beside it")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_render)
 
     p = sub.add_parser("bench", help="measure throughput")
     p.add_argument("what", choices=["sim", "train"])
     _scenario(p)
     p.add_argument("--method", default="moe-rm-srl")
-    p.add_argument("--envs", type=_positive, default=4096)
-    p.add_argument("--steps", type=_positive, default=200)
-    p.add_argument("--seeds", type=_positive, default=1, help="independent agents trained at once (bench train)")
+    p.add_argument("--envs", type=positive, default=4096)
+    p.add_argument("--steps", type=positive, default=200)
+    p.add_argument("--seeds", type=positive, default=1, help="independent agents trained at once (bench train)")
     p.add_argument("--device", default="cpu")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_bench)
 
-    from highway_srl.experiments import commands  # the training / evaluation / study commands
-
-    commands.add_parsers(sub, _scenario, _positive)
+    commands.add_parsers(sub, _scenario)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as done:  # --help, --version, or a one-line usage error (Parser.error) already printed
+        return done.code if isinstance(done.code, int) else 2
     try:
         return args.func(args)
     except KeyboardInterrupt:
         print("highway-srl: interrupted", file=sys.stderr)
         return 130
-    except (ValueError, FileNotFoundError, FileExistsError) as err:  # user errors: one line, no traceback
+    except (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError,
+            PermissionError) as err:  # user errors: one line, no traceback
         print(f"highway-srl: error: {err}", file=sys.stderr)
         return 2
 

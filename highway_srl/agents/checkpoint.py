@@ -25,10 +25,29 @@ class CheckpointError(ValueError):
     """A checkpoint folder is missing, unreadable, or belongs to a different run setup."""
 
 
+def _umask() -> int:
+    """The process umask, read without changing it where /proc allows (os.umask is set-and-get)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def write_atomic(path: Path, data: bytes) -> None:
-    """Write bytes so that a reader sees the old file or the new one, never a torn one."""
+    """Write bytes so that a reader sees the old file or the new one, never a torn one.
+
+    The file gets the mode a plain open() would give (0666 minus the umask, usually 0644): mkstemp's
+    0600 would hide results from colleagues on a shared machine.
+    """
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()

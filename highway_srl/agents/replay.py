@@ -113,23 +113,48 @@ class ExpertReplay:
         row = members.unsqueeze(1) * self.capacity + slot
         return {key: value[row] for key, value in self.storage.items()}
 
+    def _filled_rows(self, size: torch.Tensor) -> torch.Tensor:
+        """Row indices of the filled part, member by member: rows [m*capacity, m*capacity + size[m]), then
+        the scratch row (so that a round trip restores the storage bit for bit).
+
+        A buffer fills from slot 0 and wraps only once full, so its filled slots are always 0..size-1.
+        """
+        sizes = [int(n) for n in size.tolist()]
+        scratch = torch.full((1,), self.num_members * self.capacity, dtype=torch.long, device=self.device)
+        return torch.cat([torch.arange(n, device=self.device) + m * self.capacity for m, n in enumerate(sizes)]
+                         + [scratch])
+
     def state_dict(self) -> dict[str, torch.Tensor]:
-        """Flat dict of tensors (safetensors-friendly)."""
-        state = {f"replay.{k}": v for k, v in self.storage.items()}
+        """Flat dict of tensors (safetensors-friendly) holding only the filled rows (sum(size), ...), so an
+        early checkpoint is small; loading puts them back where they were."""
+        rows = self._filled_rows(self.size)
+        state = {f"replay.{k}": v[rows] for k, v in self.storage.items()}
         state["replay.ptr"], state["replay.size"] = self.ptr, self.size
+        state["replay.capacity"] = torch.tensor([self.capacity])
         return state
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
-        expected = [f"replay.{k}" for k in self.storage] + ["replay.ptr", "replay.size"]
+        expected = [f"replay.{k}" for k in self.storage] + ["replay.ptr", "replay.size", "replay.capacity"]
         missing = [k for k in expected if k not in state]
         if missing:
             raise ValueError(f"replay state is missing {missing}")
+        if state["replay.capacity"].numel() != 1 or int(state["replay.capacity"]) != self.capacity:
+            raise ValueError(f"replay state has capacity {state['replay.capacity'].tolist()} (shape mismatch), "
+                             f"this buffer {self.capacity}")
+        size, ptr = state["replay.size"], state["replay.ptr"]
+        if size.shape != (self.num_members,) or ptr.shape != (self.num_members,):
+            raise ValueError(f"replay.size/ptr have shape {tuple(size.shape)}/{tuple(ptr.shape)}, "
+                             f"expected ({self.num_members},) for {self.num_members} members")
+        size, ptr = size.to(self.device, torch.long), ptr.to(self.device, torch.long)
+        if bool((size < 0).any() | (size > self.capacity).any() | (ptr < 0).any() | (ptr >= self.capacity).any()):
+            raise ValueError(f"replay.size/ptr out of range for a buffer of capacity {self.capacity}")
+        rows = self._filled_rows(size)
         for key in self.storage:
             value = state[f"replay.{key}"]
-            if value.shape != self.storage[key].shape:
-                raise ValueError(
-                    f"replay.{key} has shape {tuple(value.shape)}, expected {tuple(self.storage[key].shape)}"
-                )
-            self.storage[key].copy_(value)
-        self.ptr = state["replay.ptr"].to(self.device, torch.long).clone()
-        self.size = state["replay.size"].to(self.device, torch.long).clone()
+            want = (rows.numel(), *self.storage[key].shape[1:])
+            if tuple(value.shape) != want:
+                raise ValueError(f"replay.{key} has shape {tuple(value.shape)}, expected {want}")
+        for key, store in self.storage.items():
+            store.zero_()
+            store[rows] = state[f"replay.{key}"].to(self.device, store.dtype)
+        self.ptr, self.size = ptr.clone(), size.clone()

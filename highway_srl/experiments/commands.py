@@ -2,27 +2,83 @@
 
 from __future__ import annotations
 
+import argparse
 import json
+import math
+import os
+import sys
 from pathlib import Path
 
 from highway_srl.constants import SCENARIOS, TRAFFIC_LEVELS
 
 
-def _levels(text: str) -> list[str]:
-    """'A..F', 'A-F', 'A,C,F' or 'C'."""
+def levels(text: str) -> list[str]:
+    """--traffic for evaluate: 'C', 'c', 'A,C,F', 'A..F' or 'A-F' (either direction), in the order A..F.
+
+    Anything else, an empty text or ',,' included, is an error rather than the training level."""
     t = text.replace(" ", "").upper()
+    names = list(TRAFFIC_LEVELS)
     for sep in ("..", "-"):
         if sep in t:
             a, b = t.split(sep, 1)
-            names = list(TRAFFIC_LEVELS)
             if a not in names or b not in names:
-                raise ValueError(f"unknown traffic range {text!r}; levels are {', '.join(names)}")
-            return names[names.index(a): names.index(b) + 1]
-    levels = [x for x in t.split(",") if x]
-    for x in levels:
-        if x not in TRAFFIC_LEVELS:
-            raise ValueError(f"unknown traffic level {x!r}; choose from {', '.join(TRAFFIC_LEVELS)}")
-    return levels
+                raise argparse.ArgumentTypeError(f"unknown traffic range {text!r}; levels are {', '.join(names)}, "
+                                                 "a range is written A..F")
+            lo, hi = sorted((names.index(a), names.index(b)))
+            return names[lo: hi + 1]
+    parts = t.split(",")
+    for x in parts:
+        if x not in names:
+            what = "an empty level" if not x else f"unknown traffic level {x!r}"
+            raise argparse.ArgumentTypeError(f"{what} in {text!r}; choose from {', '.join(names)} (e.g. C, A,C,F or A..F)")
+    return sorted(set(parts), key=names.index)
+
+
+def level(text: str) -> str:
+    """--traffic for the commands that run one level: 'C' or 'c'."""
+    t = text.strip().upper()
+    if t not in TRAFFIC_LEVELS:
+        raise argparse.ArgumentTypeError(f"unknown traffic level {text!r}; choose one of {', '.join(TRAFFIC_LEVELS)}")
+    return t
+
+
+def _integer(text: str) -> int:
+    """An integer, also written like 5e5 or 500_000 (the help texts quote the paper's 5e5)."""
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if not math.isfinite(value) or not value.is_integer():
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}")
+    return int(value)
+
+
+def positive(text: str) -> int:
+    value = _integer(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return value
+
+
+def non_negative(text: str) -> int:
+    value = _integer(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+    return value
 
 
 def _seeds(text: str) -> tuple[int, ...]:
@@ -57,15 +113,26 @@ def train_config(args):
 
 def _cmd_train(args) -> int:
     from highway_srl.agents.methods import make_method
-    from highway_srl.experiments.train import train_run
+    from highway_srl.experiments.train import finished, last_checkpoint_step, train_run
 
+    out = Path(args.out)
     if args.resume:
         cfg = None
+        if out.is_dir() and finished(out):
+            print(f"run folder {args.out} is already finished (metrics.json); nothing to resume, nothing changed")
+            return 0
     else:
         cfg = train_config(args)
         make_method(cfg.method, cfg.scenario, len(cfg.seeds), cfg.options)  # validate the name early
-    metrics = train_run(cfg, args.out, resume=args.resume, checkpoint_every=args.checkpoint_every,
-                        progress=not args.quiet)
+    try:
+        metrics = train_run(cfg, out, resume=args.resume, checkpoint_every=args.checkpoint_every,
+                            progress=not args.quiet)
+    except KeyboardInterrupt:
+        step = last_checkpoint_step(out)
+        where = f"its last checkpoint (step {step:,})" if step is not None else "step 0 (no checkpoint was written yet)"
+        print(f"highway-srl: interrupted; continue from {where} with: highway-srl train --resume --out {args.out}",
+              file=sys.stderr)
+        return 130
     m = metrics["mean"]
     tc = "n/a" if m["T_c"] is None else f"{m['T_c']:.3f}"
     tr = "n/a" if m["T_r"] is None else f"{m['T_r']:.1f}"
@@ -89,11 +156,27 @@ def format_report(report: dict) -> str:
 
 def _cmd_evaluate(args) -> int:
     from highway_srl.experiments.evaluate import evaluate_run
+    from highway_srl.experiments.runs import check_output_file, progress_bar, run_folder
+    from highway_srl.sim.world import check_device
 
-    out = args.out or str(Path(args.run) / f"eval-{args.backend}.json")
-    report = evaluate_run(args.run, scenario=args.scenario, traffics=_levels(args.traffic) if args.traffic else None,
-                          episodes=args.episodes, adversarial=True if args.adversarial else None, device=args.device,
-                          backend=args.backend, out=out, seed=args.seed)
+    run_folder(args.run)
+    check_device(args.device)
+    out = Path(args.out) if args.out else Path(args.run) / f"eval-{args.backend}.json"
+    check_output_file(out, overwrite=args.overwrite)  # before the work, not after it
+    bar = progress_bar(1, "evaluate", enabled=not args.json)
+
+    def progress(done: int, total: int) -> None:
+        if bar is not None:
+            bar.total = total
+            bar.update(done - bar.n)
+
+    try:
+        report = evaluate_run(args.run, scenario=args.scenario, traffics=args.traffic, episodes=args.episodes,
+                              adversarial=True if args.adversarial else None, device=args.device,
+                              backend=args.backend, out=out, seed=args.seed, progress=progress)
+    finally:
+        if bar is not None:
+            bar.close()
     print(json.dumps(report, indent=2) if args.json else format_report(report))
     if not args.json:
         print(f"written to {out}")
@@ -147,7 +230,26 @@ def _cmd_transfer(args) -> int:
     return 0
 
 
+def check_display() -> None:
+    """play opens a window: on a Linux machine without a display, say so at once (SDL would print an
+    error and pygame then wait for key presses that can never come)."""
+    import importlib.util
+
+    try:
+        installed = importlib.util.find_spec("pygame") is not None
+    except ValueError:  # in sys.modules but unimportable
+        installed = False
+    if not installed:
+        raise ValueError("play needs pygame, which is not installed: pip install highway-srl[play]")
+    if not sys.platform.startswith("linux"):
+        return
+    if not any(os.environ.get(k) for k in ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER")):
+        raise ValueError("play needs a display (DISPLAY and WAYLAND_DISPLAY are unset); run it on a desktop, "
+                         "over ssh -X, or set SDL_VIDEODRIVER")
+
+
 def _cmd_play(args) -> int:
+    check_display()
     from highway_srl.experiments.play import play
 
     report = play(args.scenario, args.traffic, args.out, adversarial=args.adversarial, episodes=args.episodes,
@@ -157,7 +259,7 @@ def _cmd_play(args) -> int:
     return 0
 
 
-def add_parsers(sub, scenario_args, positive) -> None:
+def add_parsers(sub, scenario_args) -> None:
     p = sub.add_parser("train", help="train a method; writes a run folder")
     p.add_argument("--method", default="moe-rm-srl")
     scenario_args(p)
@@ -165,15 +267,16 @@ def add_parsers(sub, scenario_args, positive) -> None:
     p.add_argument("--envs", type=positive, default=16, help="environments per seed stepped together")
     p.add_argument("--seeds", default="0", help="comma-separated seeds trained together, e.g. 0,1,2,3")
     p.add_argument("--device", default="cpu")
-    p.add_argument("--updates-per-step", type=int, default=4, help="gradient steps per acting expert per vector step")
-    p.add_argument("--learning-starts", type=int, default=None)
+    p.add_argument("--updates-per-step", type=positive, default=4, help="gradient steps per acting expert per vector step")
+    p.add_argument("--learning-starts", type=non_negative, default=None, help="env steps before the first update")
     p.add_argument("--share-transitions", action="store_true",
                    help="store each transition in every expert whose action set holds the executed action")
     p.add_argument("--no-mapping", action="store_true", help="ablation: without the ID/rule/action/control mappings")
     p.add_argument("--no-moe", action="store_true", help="ablation: one DQN over A*, no gated experts")
     p.add_argument("--no-rm", action="store_true", help="ablation: reward without the reward machine")
     p.add_argument("--checkpoint-every", type=positive, default=50_000, help="env steps between resume checkpoints")
-    p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint, "
+                   "with every setting it was started with (config.json); the other options are then ignored")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--out", required=True, help="run folder")
     p.set_defaults(func=_cmd_train)
@@ -181,21 +284,24 @@ def add_parsers(sub, scenario_args, positive) -> None:
     p = sub.add_parser("evaluate", help="deployment metrics of a trained run")
     p.add_argument("run")
     p.add_argument("--scenario", default=None)
-    p.add_argument("--traffic", default=None, help="levels, e.g. C, A..F or A,C,F (default: the training level)")
+    p.add_argument("--traffic", type=levels, default=None,
+                   help="levels, e.g. C, A..F or A,C,F (default: the training level)")
     p.add_argument("--adversarial", action="store_true")
     p.add_argument("--episodes", type=positive, default=100)
     p.add_argument("--backend", default="ours", help="ours, sumo or highway-env")
     p.add_argument("--device", default="cpu")
-    p.add_argument("--seed", type=int, default=0, help="offset of the evaluation episodes' seeds")
-    p.add_argument("--out", default=None, help="JSON file (default: RUN/eval-BACKEND.json)")
+    p.add_argument("--seed", type=non_negative, default=0, help="offset of the evaluation episodes' seeds")
+    p.add_argument("--out", default=None, help="JSON file (default: RUN/eval-BACKEND.json); never replaced "
+                   "without --overwrite")
+    p.add_argument("--overwrite", action="store_true", help="replace the --out file if it exists")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_evaluate)
 
     p = sub.add_parser("play", help="drive the ego yourself (the Manual baseline); needs pygame")
     scenario_args(p)
     p.add_argument("--episodes", type=positive, default=1)
-    p.add_argument("--seed", type=int, default=0, help="traffic seed of the first episode")
-    p.add_argument("--fps", type=float, default=8.0, help="decisions per second (the paper's 8 Hz)")
+    p.add_argument("--seed", type=non_negative, default=0, help="traffic seed of the first episode")
+    p.add_argument("--fps", type=positive_float, default=8.0, help="decisions per second (the paper's 8 Hz)")
     p.add_argument("--out", required=True, help="run folder: config.json, episodes.jsonl, metrics.json")
     p.set_defaults(func=_cmd_play)
 
@@ -203,11 +309,10 @@ def add_parsers(sub, scenario_args, positive) -> None:
     p.add_argument("--steps", type=positive, default=30_000)
     p.add_argument("--envs", type=positive, default=16)
     p.add_argument("--episodes", type=positive, default=50)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", default="out")
+    p.add_argument("--seed", type=non_negative, default=0)
+    p.add_argument("--out", default="out", help="demo folder; a run already there is reused only if it was "
+                   "trained with the same --steps, --envs and --seed")
     p.set_defaults(func=_cmd_demo)
-
-    import argparse
 
     p = sub.add_parser("reproduce", help="run the paper's whole study (groups 1-3, Tables 5-6, figures, report)",
                        description="Train and evaluate every method on every scene of the paper's study, then write "

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from highway_srl.agents.checkpoint import write_atomic
 from highway_srl.constants import TRAFFIC_LEVELS
 
 
@@ -15,16 +16,37 @@ def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0) -> 
     from highway_srl.experiments.evaluate import evaluate_run
     from highway_srl.experiments.train import train_run
 
-    out.mkdir(parents=True, exist_ok=True)
-    run = out / "run"
-    if not (run / "metrics.json").exists():
-        cfg = TrainConfig(steps=steps, envs=envs, seeds=(seed,),
-                          dqn=DQNConfig(total_steps=steps, learning_starts=min(1000, steps // 10)))
-        train_run(cfg, run, resume=(run / "config.json").exists())
-    from highway_srl.experiments.runs import read_json
+    from highway_srl.experiments.runs import check_output_folder, holds_other_files, progress_bar, read_json, run_config
 
+    run = out / "run"
+    cfg = TrainConfig(steps=steps, envs=envs, seeds=(seed,),
+                      dqn=DQNConfig(total_steps=steps, learning_starts=min(1000, steps // 10)))
+    check_output_folder(out)
+    if (run / "config.json").exists():  # a demo run is reused (or resumed) only if it has these very settings
+        old = run_config(run)["config"]
+        want = {"steps": steps, "envs": envs, "seeds": [seed]}
+        have = {k: old.get(k) for k in want}
+        if have != want:
+            raise ValueError(f"{str(run)!r} holds a demo run with other settings ({_settings(have)}), not "
+                             f"{_settings(want)}; choose another --out or move it away")
+        print(f"reusing the demo run in {run}" if (run / "metrics.json").exists() else f"resuming the demo run in {run}")
+    elif holds_other_files(out):
+        raise ValueError(f"--out {str(out)!r} holds files but no demo run ({run}/config.json); choose an empty or new folder")
+    out.mkdir(parents=True, exist_ok=True)
+    if not (run / "metrics.json").exists():
+        train_run(cfg, run, resume=(run / "config.json").exists())
     metrics = read_json(run / "metrics.json")
-    report = evaluate_run(run, traffics=list(TRAFFIC_LEVELS), episodes=episodes, out=out / "evaluation.json")
+    bar = progress_bar(1, "evaluate levels A-F")
+
+    def progress(done: int, total: int) -> None:
+        bar.total = total
+        bar.update(done - bar.n)
+
+    try:
+        report = evaluate_run(run, traffics=list(TRAFFIC_LEVELS), episodes=episodes, out=out / "evaluation.json",
+                              progress=progress)
+    finally:
+        bar.close()
     render_episode(run, None, "C", False, "idm", seed, out / "two-lane-C.gif")
     plot = _plot(report, out / "deployment.png")
     lines = ["# highway-srl demo", "",
@@ -32,14 +54,30 @@ def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0) -> 
              f"({metrics['wall_s']:.0f} s, {metrics['env_steps_per_s']:,.0f} env-steps/s); "
              f"training collision-free rate T_c = {_fmt(metrics['mean']['T_c'], 3)}, final return T_r = {_fmt(metrics['mean']['T_r'], 1)}.",
              "", f"Deployment, {episodes} episodes per level:", "",
-             "| level | collision-free C_r | average speed (m/s) | R_r |", "|---|---|---|---|"]
-    for level, r in report["levels"].items():
-        lines.append(f"| {level} | {r['C_r']['value']:.1%} | {r['avg_speed']['value']:.2f} | {r['R_r']['value']:.1f} |")
+             *deployment_table(report)]
     lines += ["", f"![deployment]({plot.name})", "", "Episode: `two-lane-C.gif`. Run folder: `run/`.", ""]
-    (out / "report.md").write_text("\n".join(lines))
+    write_atomic(out / "report.md", "\n".join(lines).encode())
     print("\n".join(lines))
     print(f"report: {out / 'report.md'}")
     return out / "report.md"
+
+
+def deployment_table(report: dict) -> list[str]:
+    """report.md's Markdown table: every value with the 95 % interval that evaluation.json holds."""
+    lines = ["Each value with its 95 % interval in brackets (Wilson for the rate C_r).", "",
+             "| level | collision-free C_r | average speed (m/s) | R_r |", "|---|---|---|---|"]
+    for level, r in report["levels"].items():
+        lines.append(f"| {level} | {_ci(r['C_r'], '.1%')} | {_ci(r['avg_speed'], '.2f')} | {_ci(r['R_r'], '.1f')} |")
+    return lines
+
+
+def _settings(d: dict) -> str:
+    return f"--steps {d['steps']}, --envs {d['envs']}, --seed {','.join(map(str, d['seeds'] or []))}"
+
+
+def _ci(stat: dict, spec: str) -> str:
+    """'value [low, high]' of an evaluation statistic."""
+    return f"{stat['value']:{spec}} [{stat['low']:{spec}}, {stat['high']:{spec}}]"
 
 
 def _fmt(value, digits: int) -> str:
@@ -47,6 +85,14 @@ def _fmt(value, digits: int) -> str:
 
 
 def _plot(report: dict, path: Path) -> Path:
+    plt, fig = deployment_figure(report)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def deployment_figure(report: dict):
+    """(pyplot, figure): C_r against average speed per level, with 95 % intervals on both axes."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -54,13 +100,17 @@ def _plot(report: dict, path: Path) -> Path:
 
     fig, ax = plt.subplots(figsize=(5, 4), dpi=100)
     for level, r in report["levels"].items():
-        ax.scatter(r["avg_speed"]["value"], 100 * r["C_r"]["value"], s=40)
-        ax.annotate(level, (r["avg_speed"]["value"], 100 * r["C_r"]["value"]), textcoords="offset points", xytext=(5, 3))
+        cr, v = r["C_r"], r["avg_speed"]
+        x, y = v["value"], 100 * cr["value"]
+        # 95 % intervals: Wilson for the rate (never past 0-100 %), the mean's interval for the speed
+        ax.errorbar(x, y, yerr=[[y - 100 * cr["low"]], [100 * cr["high"] - y]],
+                    xerr=[[x - v["low"]], [v["high"] - x]], fmt="o", ms=6, capsize=3, clip_on=False)
+        ax.annotate(level, (x, y), textcoords="offset points", xytext=(6, -12))
+    low = min(100 * r["C_r"]["low"] for r in report["levels"].values())
+    ax.set_ylim(max(0.0, low - 5.0), 100.0)  # a rate's axis ends at 100 %
     ax.set_xlabel("average speed (m/s)")
-    ax.set_ylabel("collision-free rate C_r (%)")
+    ax.set_ylabel("collision-free rate C_r (%), 95 % interval")
     ax.set_title("MoE-RM-SRL deployment, levels A-F")
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return plt, fig

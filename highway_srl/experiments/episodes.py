@@ -18,8 +18,11 @@ def _policy_driver(policy: str):
     return lambda world: (idm_ego(world), [])
 
 
-def render_episode(run, scenario, traffic, adversarial, policy, seed, out: Path, steps: int = 320, backend: str = "ours"):
-    """Drive one episode and write `out` (GIF) and a PNG of its middle frame beside it."""
+def render_episode(run, scenario, traffic, adversarial, policy, seed, out: Path, steps: int = 320, backend: str = "ours",
+                   progress: bool = False):
+    """Drive one episode and write `out` (GIF) and a PNG of its middle frame beside it.
+
+    progress: a bar over the steps driven, then the frames drawn."""
     if out.suffix.lower() != ".gif":
         raise ValueError(f"--out must end in .gif, got {str(out)!r}")
     if run is not None:
@@ -38,13 +41,25 @@ def render_episode(run, scenario, traffic, adversarial, policy, seed, out: Path,
         world = make_backend(backend, scenario, traffic, adversarial, seed)
         if run is None:  # the built-in driver that only uses the Backend protocol
             driver = lambda w: (idm_ego_backend(w), [])  # noqa: E731
-    frames = [capture(world)]
-    for _ in range(steps):
-        (lane, speed), text = driver(world)
-        events = world.step(lane, speed)
-        frames.append(capture(world, collision=bool(events.collision[0]), text=text))
-        if bool(events.terminated[0] | events.truncated[0]):
-            break
-    gif = save_gif(world.road, frames, out)
-    png = save_png(world.road, frames[len(frames) // 2], out.with_suffix(".png"))
+    from highway_srl.experiments.runs import progress_bar
+
+    bar = progress_bar(2 * steps + 1, "render (drive, then draw)", unit="frame", enabled=progress)
+    try:
+        frames = [capture(world)]
+        for _ in range(steps):
+            (lane, speed), text = driver(world)
+            events = world.step(lane, speed)
+            frames.append(capture(world, collision=bool(events.collision[0]), text=text))
+            if bar is not None:
+                bar.update()
+            if bool(events.terminated[0] | events.truncated[0]):
+                break
+        if bar is not None:  # the episode may end early: the rest of the bar is the drawing
+            bar.total = 2 * len(frames) - 1
+            bar.refresh()
+        gif = save_gif(world.road, frames, out, on_frame=None if bar is None else lambda i: bar.update())
+        png = save_png(world.road, frames[len(frames) // 2], out.with_suffix(".png"))
+    finally:
+        if bar is not None:
+            bar.close()
     return [gif, png]

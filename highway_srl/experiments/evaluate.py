@@ -21,8 +21,10 @@ from highway_srl.sim import World
 EVAL_SEED_BASE = 1_000_000_000  # evaluation episodes never reuse a training seed
 
 
-def run_episodes(world, method, learner) -> dict[str, torch.Tensor]:
-    """Drive one episode in every env of `world` (no resets); per-env results (B,)."""
+def run_episodes(world, method, learner, on_step=None) -> dict[str, torch.Tensor]:
+    """Drive one episode in every env of `world` (no resets); per-env results (B,).
+
+    on_step(t), if given, is called after step t (1-based) with no tensor read (progress display)."""
     make_layer = getattr(method, "make_layer", None)  # a Method; duck-typed test policies give layer_options
     layer = make_layer(world.road) if make_layer else SafetyLayer(world.road, **method.layer_options)
     b, dev = world.num_envs, world.device
@@ -34,7 +36,9 @@ def run_episodes(world, method, learner) -> dict[str, torch.Tensor]:
     steps = torch.zeros(b, device=dev)
     no_explore = torch.zeros(b, dtype=torch.bool, device=dev)
     step = layer.observe(world)
-    for _ in range(world.max_steps):
+    for t in range(world.max_steps):
+        if on_step is not None:
+            on_step(t)
         decision = method.decide(learner, step, no_explore, None)
         lane, target = layer.act(decision.action, decision.use_second)
         events = world.step(lane, target)
@@ -75,7 +79,9 @@ def summarise(results: dict[str, torch.Tensor], scenario: str) -> dict:
 
 def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, episodes: int = 100,
                  adversarial: bool | None = None, device: str = "cpu", backend: str = "ours", out: str | Path | None = None,
-                 seed: int = 0) -> dict:
+                 seed: int = 0, progress=None) -> dict:
+    """progress(done, total), if given, is called as the work advances (vector steps on our simulator,
+    episodes on the others)."""
     from highway_srl.experiments.train import load_learner_state
 
     cfg, tensors, meta = load_learner_state(run)
@@ -97,13 +103,18 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
     report = {"run": str(run), "method": cfg.method, "scenario": scenario, "adversarial": adversarial,
               "backend": backend, "episodes_per_level": episodes, "trained_seeds": list(cfg.seeds), "levels": {},
               **provenance()}
-    for traffic in traffics:
+    for i, traffic in enumerate(traffics):
         env_seeds = [EVAL_SEED_BASE + seed * 100_003 + e for _ in range(seeds) for e in range(episodes)]
         if backend == "ours":
             world = World(scenario, traffic, adversarial, episodes * seeds, device, env_seeds)
-            results = run_episodes(world, method, learner)
+            n = world.max_steps
+            tick = None if progress is None else lambda t, i=i, n=n: progress(i * n + t, len(traffics) * n)
+            results = run_episodes(world, method, learner, tick)
+            if progress is not None:
+                progress((i + 1) * n, len(traffics) * n)
         else:
-            results = _run_backend(backend, scenario, traffic, adversarial, env_seeds, method, learner, episodes)
+            tick = None if progress is None else lambda e, i=i: progress(i * episodes + e, len(traffics) * episodes)
+            results = _run_backend(backend, scenario, traffic, adversarial, env_seeds, method, learner, episodes, tick)
         level = summarise(results, scenario)
         level["per_seed"] = {
             str(s): summarise({k: v[i * episodes:(i + 1) * episodes] for k, v in results.items()}, scenario)
@@ -115,14 +126,16 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
     return report
 
 
-def _run_backend(backend, scenario, traffic, adversarial, env_seeds, method, learner, episodes):
+def _run_backend(backend, scenario, traffic, adversarial, env_seeds, method, learner, episodes, on_episode=None):
     """Simulators we did not write run one env per process: episodes one after another."""
     from highway_srl.backends import make_backend
 
     if len(env_seeds) != episodes:
         raise ValueError(f"evaluation on backend {backend!r} takes runs trained with one seed")
     parts = []
-    for env_seed in env_seeds:
+    for e, env_seed in enumerate(env_seeds):
+        if on_episode is not None:
+            on_episode(e)
         world = make_backend(backend, scenario, traffic, adversarial, env_seed)
         parts.append(run_episodes(world, method, learner))
         close = getattr(world, "close", None)

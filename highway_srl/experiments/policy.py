@@ -10,6 +10,15 @@ from highway_srl.agents.methods import make_method
 from highway_srl.constants import OBS_DIM
 
 
+# The reward machine's states (rules/reward_machine.py, §3.2) in words: K = keeping the target lane,
+# R1 = the rule on the vehicle ahead, R1-R4 = all four surrounding-vehicle rules.
+RM_MEANINGS = ("in lane, R1 kept", "in lane, R1 broken", "changing lane, R1-R4 kept", "changing lane, a rule broken")
+
+
+def rm_label(state: int) -> str:
+    return f"RM state u{state + 1}: {RM_MEANINGS[state]}"
+
+
 def load_policy(run, scenario: str | None):
     """(driver(world) -> ((lane, speed), text lines), scenario) for env 0 of a world, from a finished run."""
     from highway_srl.experiments.train import load_learner_state
@@ -36,7 +45,7 @@ def load_policy(run, scenario: str | None):
         member = int(decision.member[0])
         expert = EXPERT_NAMES[member % len(EXPERT_NAMES)] if member >= 0 and cfg.method == "moe-rm-srl" else (
             "fallback" if member < 0 else f"member {member}")
-        text = [f"{method.action_names[int(decision.action[0])]} by {expert}", "safe: " + ",".join(safe), f"u{int(model.rm_state[0]) + 1}"]
+        text = [f"{method.action_names[int(decision.action[0])]} by {expert}", "safe: " + ",".join(safe), rm_label(int(model.rm_state[0]))]
         return layer.act(decision.action, decision.use_second), text
 
     return driver, cfg.scenario

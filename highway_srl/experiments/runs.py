@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import os
 import subprocess
-import tempfile
 from pathlib import Path
 
 from highway_srl import __version__
@@ -59,13 +60,91 @@ def open_state(root: Path, name: str, what: str) -> dict | None:
     return None
 
 
+LOCK_FILE = ".lock"
+CONFIG_KEYS = ("method", "scenario", "traffic", "steps", "envs", "seeds")  # what every run's config must name
+
+
 def run_folder(path: str | Path) -> Path:
+    """A run folder whose config.json is readable and names a run; one-line errors otherwise."""
     p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise ValueError(f"{str(p)!r} is a file, not a run folder")
     if not p.is_dir():
         raise FileNotFoundError(f"run folder {str(p)!r} does not exist")
     if not (p / "config.json").exists():
         raise ValueError(f"{str(p)!r} is not a run folder (no config.json)")
+    run_config(p)
     return p
+
+
+def run_config(folder: Path) -> dict:
+    """config.json of a run folder, checked to be {"config": {...the TrainConfig...}, ...}."""
+    path = folder / "config.json"
+    data = read_json(path)
+    config = data.get("config") if isinstance(data, dict) else None
+    if not isinstance(config, dict):
+        raise ValueError(f"{path} is damaged (no \"config\" object); it cannot be used as a run's settings")
+    missing = [k for k in CONFIG_KEYS if k not in config]
+    if missing:
+        raise ValueError(f"{path} is damaged (its config lacks {', '.join(missing)})")
+    return data
+
+
+def check_output_folder(path: Path, flag: str = "--out") -> None:
+    """Refuse, before any work, a folder path that is a file or lies under one."""
+    for p in (path, *path.parents):
+        if p.exists():
+            if not p.is_dir():
+                raise ValueError(f"{flag} {str(path)!r}: {str(p)!r} is a file, not a folder")
+            return
+
+
+def check_output_file(path: Path, overwrite: bool = False, flag: str = "--out", force_flag: str = "--overwrite") -> None:
+    """Refuse, before any work, an output file path that is a folder, lies under a file, or exists (unless
+    overwrite)."""
+    if path.is_dir():
+        raise ValueError(f"{flag} {str(path)!r} is a folder; give a file name")
+    check_output_folder(path.parent, flag)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{str(path)} exists; pass {force_flag} to replace it or {flag} to write elsewhere")
+
+
+def holds_other_files(folder: Path) -> bool:
+    """True if the folder exists and holds anything besides a run lock."""
+    return folder.is_dir() and any(p.name != LOCK_FILE for p in folder.iterdir())
+
+
+@contextlib.contextmanager
+def lock_run(folder: Path):
+    """Hold an advisory lock on a run folder while a process writes in it.
+
+    flock: the kernel drops it when the process dies, so a lock left by a killed run never blocks a resume.
+    The lock file itself stays (empty but for the holder's pid) and is ignored by the folder checks.
+    """
+    path = folder / LOCK_FILE
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            raise ValueError(f"run folder {str(folder)!r} is in use by another process (pid {holder}); "
+                             "wait for it to finish or choose another --out") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)  # closing releases the lock
+
+
+def progress_bar(total: int, desc: str, unit: str = "step", enabled: bool = True, initial: int = 0):
+    """A tqdm bar that refreshes on the clock (at most every 0.5 s, at least whenever update() is called
+    after 0.5 s), with an ETA; None when disabled."""
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, initial=initial, desc=desc, unit=unit, dynamic_ncols=True, mininterval=0.5, miniters=1)
 
 
 def append_jsonl(path: Path, rows: list[dict]) -> None:
@@ -95,8 +174,4 @@ def read_jsonl(path: Path) -> list[dict]:
 def truncate_jsonl(path: Path, keep) -> None:
     """Keep only rows for which keep(row) is true (resuming drops episodes logged after the checkpoint)."""
     rows = [r for r in read_jsonl(path) if keep(r)]
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        for r in rows:
-            f.write(json.dumps(r) + "\n")
-    os.replace(tmp, path)
+    write_atomic(path, "".join(json.dumps(r) + "\n" for r in rows).encode())

@@ -1,7 +1,8 @@
 """`highway-srl train`: a run folder with config, episode log, checkpoints and training metrics.
 
 Run folder layout:
-  config.json        the TrainConfig, seed(s), version and commit
+  config.json        the TrainConfig, seed(s), checkpoint_every, version and commit (--resume reads its settings here)
+  .lock              advisory lock (flock) held while a process trains here
   episodes.jsonl     one line per finished training episode
   scalars.csv        env_steps, steps/s, return, collision-free rate, expert usage (TensorBoard too, if installed)
   model/             final weights (model.safetensors + meta.json), what evaluate and render load
@@ -17,9 +18,12 @@ from pathlib import Path
 
 import torch
 
-from highway_srl.agents.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from highway_srl.agents.checkpoint import CheckpointError, load_checkpoint, save_checkpoint, write_atomic
 from highway_srl.agents.trainer import Episode, Trainer, TrainConfig
-from highway_srl.experiments.runs import append_jsonl, provenance, read_json, read_jsonl, truncate_jsonl, write_json
+from highway_srl.experiments.runs import (
+    append_jsonl, check_output_folder, holds_other_files, lock_run, progress_bar, provenance, read_json, read_jsonl,
+    run_config, truncate_jsonl, write_json,
+)
 
 SMOOTH_EPISODES = 20
 
@@ -70,10 +74,18 @@ def _meta(cfg: TrainConfig, trainer: Trainer, code: dict) -> dict:
 
 
 class _Scalars:
-    def __init__(self, out: Path):
+    HEADER = "env_steps,steps_per_s,epsilon,mean_return,collision_free,episodes\n"
+
+    def __init__(self, out: Path, keep_until: int | None = None):
+        """keep_until: on a resume, the checkpoint's step; rows logged after it are dropped (they are logged again)."""
         self.path = out / "scalars.csv"
-        if not self.path.exists():
-            self.path.write_text("env_steps,steps_per_s,epsilon,mean_return,collision_free,episodes\n")
+        if keep_until is None or not self.path.exists():
+            write_atomic(self.path, self.HEADER.encode())
+        else:
+            lines = self.path.read_text().splitlines(keepends=True)[1:]
+            kept = [ln for ln in lines if ln.endswith("\n") and ln.split(",", 1)[0].isdigit()
+                    and int(ln.split(",", 1)[0]) <= keep_until]
+            write_atomic(self.path, (self.HEADER + "".join(kept)).encode())
         self.tb = None
         try:  # TensorBoard is optional
             from torch.utils.tensorboard import SummaryWriter
@@ -92,66 +104,128 @@ class _Scalars:
                 self.tb.add_scalar(k, v, step)
 
 
-def train_run(cfg: TrainConfig, out: str | Path, resume: bool = False, checkpoint_every: int = 50_000,
-              progress: bool = True) -> dict:
-    """Train and write the run folder; returns metrics.json's content."""
-    out = Path(out)
-    code = provenance()  # the code that runs is the code loaded now, not what is checked out at the end
+def finished(out: Path) -> bool:
+    """A run folder whose training ran to the end (metrics.json is written last but for the resume/ cleanup)."""
+    return (out / "metrics.json").exists()
+
+
+def last_checkpoint_step(out: Path) -> int | None:
+    """env steps per seed of the resume checkpoint in a run folder, None if there is none (or it is unreadable)."""
+    try:
+        return int(read_json(out / "resume" / "meta.json")["env_steps"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def _check_target(out: Path, resume: bool) -> None:
+    """Refuse, before anything is written, a run folder that this command must not touch."""
+    check_output_folder(out)
     if resume:
         if not (out / "config.json").exists():
             raise FileNotFoundError(f"cannot resume: {str(out)!r} has no config.json")
-        saved = read_json(out / "config.json")
-        cfg = TrainConfig.from_dict(saved["config"])
+        if finished(out):
+            raise ValueError(f"run folder {str(out)!r} is already finished (metrics.json); nothing to resume")
     elif (out / "config.json").exists():
         raise FileExistsError(f"{str(out)!r} already holds a run; use --resume to continue it or choose another --out")
-    trainer = Trainer(cfg)
+    elif holds_other_files(out):
+        raise ValueError(f"--out {str(out)!r} holds files but no run (config.json); choose an empty or new folder")
+
+
+def _load_resume(trainer: Trainer, folder: Path, cfg: TrainConfig) -> dict:
+    """Load resume/ into a fresh trainer; a checkpoint that does not fit the run's config is one clear line."""
+    tensors, meta = load_checkpoint(folder, expect={"method": cfg.method, "scenario": cfg.scenario})
+    fresh = {k: v for k, v in trainer.state_dict().items() if not k.startswith("replay.")}  # replay checks itself
+    missing = sorted(set(fresh) - set(tensors))
+    if missing:
+        raise CheckpointError(f"{folder} lacks {len(missing)} tensor(s), e.g. {missing[0]!r}; it is not this run's checkpoint")
+    for key, want in fresh.items():
+        got = tensors[key]
+        if got.shape != want.shape or got.dtype != want.dtype:
+            raise CheckpointError(f"{folder}: {key} is {tuple(got.shape)} {got.dtype}, this run's config "
+                                  f"(envs {cfg.envs}, seeds {list(cfg.seeds)}) needs {tuple(want.shape)} {want.dtype}")
+    try:
+        trainer.load_state_dict(tensors)
+    except (RuntimeError, ValueError, KeyError, TypeError, IndexError) as err:
+        first = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise CheckpointError(f"{folder} does not fit this run: {first}") from None
+    return meta
+
+
+def train_run(cfg: TrainConfig | None, out: str | Path, resume: bool = False, checkpoint_every: int = 50_000,
+              progress: bool = True) -> dict:
+    """Train and write the run folder; returns metrics.json's content.
+
+    resume: continue the run in `out` with every setting it was started with (config.json holds the
+    TrainConfig and checkpoint_every; `cfg` and `checkpoint_every` are then ignored). The folder is locked
+    while this runs (a second process gets a one-line error); nothing is written before every check passed.
+    """
+    out = Path(out)
+    code = provenance()  # the code that runs is the code loaded now, not what is checked out at the end
+    _check_target(out, resume)
+    if resume:
+        saved = run_config(out)
+        try:
+            cfg = TrainConfig.from_dict(saved["config"])
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{out / 'config.json'} is damaged ({str(err).splitlines()[0]})") from None
+        checkpoint_every = int(saved.get("checkpoint_every", checkpoint_every))
     out.mkdir(parents=True, exist_ok=True)
+    with lock_run(out):
+        _check_target(out, resume)  # again, under the lock: another process may have finished meanwhile
+        return _train_locked(cfg, out, resume, checkpoint_every, progress, code)
+
+
+def _train_locked(cfg: TrainConfig, out: Path, resume: bool, checkpoint_every: int, progress: bool, code: dict) -> dict:
+    trainer = Trainer(cfg)
     log = out / "episodes.jsonl"
     started = time.perf_counter()
     if resume and (out / "resume").exists():
-        tensors, meta = load_checkpoint(out / "resume", expect={"method": cfg.method, "scenario": cfg.scenario})
-        trainer.load_state_dict(tensors)
+        meta = _load_resume(trainer, out / "resume", cfg)
         truncate_jsonl(log, lambda r: r["step"] <= trainer.env_steps)
+        scalars = _Scalars(out, keep_until=trainer.env_steps)
         prior_wall = meta.get("wall_s", 0.0)
     else:
-        if resume:
-            log.unlink(missing_ok=True)
+        log.unlink(missing_ok=True)  # a resume before the first checkpoint starts afresh
         prior_wall = 0.0
-        write_json(out / "config.json", {"config": cfg.to_dict(), **code})
+        write_json(out / "config.json", {"config": cfg.to_dict(), "checkpoint_every": checkpoint_every, **code})
+        scalars = _Scalars(out)
     log.touch()
-    scalars = _Scalars(out)
     recent: list[Episode] = []
-    bar = _progress(cfg.steps, trainer.env_steps, progress)
+    bar = progress_bar(cfg.steps, f"train {cfg.method}", enabled=progress, initial=min(trainer.env_steps, cfg.steps))
     last_ckpt, last_log, t_log, s_log = trainer.env_steps, trainer.env_steps, time.perf_counter(), trainer.env_steps
-    while trainer.env_steps < cfg.steps:
-        finished = trainer.step()
-        if finished:
-            append_jsonl(log, [_episode_row(e) for e in finished])
-            recent = (recent + finished)[-100:]
-        if trainer.env_steps - last_log >= 2000 or trainer.env_steps >= cfg.steps:
-            now = time.perf_counter()
-            rate = (trainer.env_steps - s_log) * len(cfg.seeds) / max(now - t_log, 1e-9)
-            stats = {
-                "steps_per_s": rate,
-                "epsilon": cfg.dqn.epsilon(trainer.env_steps),
-                "mean_return": sum(e.ret for e in recent) / len(recent) if recent else 0.0,
-                "collision_free": sum(not e.collision for e in recent) / len(recent) if recent else 1.0,
-                "episodes": len(recent),
-            }
-            scalars.log(trainer.env_steps, stats)
-            if bar is not None:
-                share = trainer.usage.float() / trainer.usage.sum().clamp(min=1)
-                bar.set_postfix(sps=f"{rate:,.0f}", ret=f"{stats['mean_return']:.1f}",
-                                free=f"{stats['collision_free']:.2f}", eps=f"{stats['epsilon']:.2f}",
-                                first=f"{float(share[1::trainer.method.num_members // len(cfg.seeds)].sum()):.0%}")
-                bar.update(trainer.env_steps - last_log)
-            last_log, t_log, s_log = trainer.env_steps, now, trainer.env_steps
-        if trainer.env_steps - last_ckpt >= checkpoint_every and trainer.env_steps < cfg.steps:
-            wall = prior_wall + time.perf_counter() - started
-            save_checkpoint(out / "resume", trainer.state_dict(), {**_meta(cfg, trainer, code), "wall_s": wall})
-            last_ckpt = trainer.env_steps
-    if bar is not None:
-        bar.close()
+    try:
+        while trainer.env_steps < cfg.steps:
+            finished_eps = trainer.step()
+            if finished_eps:
+                append_jsonl(log, [_episode_row(e) for e in finished_eps])
+                recent = (recent + finished_eps)[-100:]
+            if bar is not None:  # tqdm redraws on its own clock (mininterval); no tensor is read here
+                bar.update(min(trainer.env_steps, cfg.steps) - bar.n)
+            if trainer.env_steps - last_log >= 2000 or trainer.env_steps >= cfg.steps:
+                now = time.perf_counter()
+                rate = (trainer.env_steps - s_log) * len(cfg.seeds) / max(now - t_log, 1e-9)
+                stats = {
+                    "steps_per_s": rate,
+                    "epsilon": cfg.dqn.epsilon(trainer.env_steps),
+                    "mean_return": sum(e.ret for e in recent) / len(recent) if recent else 0.0,
+                    "collision_free": sum(not e.collision for e in recent) / len(recent) if recent else 1.0,
+                    "episodes": len(recent),
+                }
+                scalars.log(trainer.env_steps, stats)
+                if bar is not None:
+                    share = trainer.usage.float() / trainer.usage.sum().clamp(min=1)
+                    bar.set_postfix(ret=f"{stats['mean_return']:.1f}", free=f"{stats['collision_free']:.2f}",
+                                    eps=f"{stats['epsilon']:.2f}",
+                                    first=f"{float(share[1::trainer.method.num_members // len(cfg.seeds)].sum()):.0%}",
+                                    refresh=False)
+                last_log, t_log, s_log = trainer.env_steps, now, trainer.env_steps
+            if trainer.env_steps - last_ckpt >= checkpoint_every and trainer.env_steps < cfg.steps:
+                wall = prior_wall + time.perf_counter() - started
+                save_checkpoint(out / "resume", trainer.state_dict(), {**_meta(cfg, trainer, code), "wall_s": wall})
+                last_ckpt = trainer.env_steps
+    finally:
+        if bar is not None:
+            bar.close()  # ends the bar's line, so a message after an interrupt starts on its own line
     wall = prior_wall + time.perf_counter() - started
     learner_state = {f"learner.{k}": v for k, v in trainer.learner.state_dict().items()}
     learner_state.update({f"method.{k}": v for k, v in trainer.method.state_dict().items()})  # e.g. LM-RL's λ
@@ -183,14 +257,6 @@ def _remove_resume(path: Path) -> None:
         for f in path.iterdir():
             f.unlink()
         path.rmdir()
-
-
-def _progress(total: int, start: int, enabled: bool):
-    if not enabled:
-        return None
-    from tqdm import tqdm
-
-    return tqdm(total=total, initial=start, unit="step", dynamic_ncols=True, mininterval=1.0)
 
 
 def load_learner_state(run: str | Path, expect: dict | None = None):

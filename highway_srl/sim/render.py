@@ -1,4 +1,5 @@
-"""Top-down pictures of an episode: lanes, zones, vehicles coloured by style, the ego highlighted.
+"""Top-down pictures of an episode: lanes, zones, vehicles coloured by style (with a legend), the ego
+highlighted; the picture is cropped to the road (its height follows the number of lanes).
 
 Frames are plain NumPy records taken from env 0 of a world, so rendering never slows a batched run.
 """
@@ -50,7 +51,7 @@ def _draw(ax, road: Road, frame: Frame) -> None:
         a, b = max(z0, lo), min(z1, hi)
         if a < b:
             ax.add_patch(patches.Rectangle((a, -0.5 * w), b - a, road.num_lanes * w, color=ZONE_COLOURS[i % 4], zorder=0))
-            ax.text(a + 1, (road.num_lanes - 0.5) * w + 0.6, name.replace("_", " "), fontsize=7, color="#555")
+            ax.text(a + 1, (road.num_lanes - 0.5) * w + 1.4, name.replace("_", " "), fontsize=9, color="#444")
     for k in range(road.num_lanes):
         a, b = max(road.lane_start_m[k], lo), min(road.lane_end_m[k], hi)
         if a < b:
@@ -78,28 +79,50 @@ def _draw(ax, road: Road, frame: Frame) -> None:
     if frame.collision:
         ax.plot(frame.x[0], frame.y[0], marker="X", color="red", markersize=18, zorder=4)
     ax.set_xlim(lo, hi)
-    ax.set_ylim((road.num_lanes - 0.5) * w + 2.0, -0.5 * w - 2.0)  # lane 0 on top: y grows downwards = right
+    ax.set_ylim((road.num_lanes - 0.5) * w + ROAD_MARGIN_M, -0.5 * w - ROAD_MARGIN_M)  # lane 0 on top: y down = right
     ax.set_aspect("equal")
     ax.set_yticks([])
-    ax.set_xlabel("x (m)")
-    info = [f"t = {frame.step * 0.125:5.2f} s", f"ego {frame.speed[0]:4.1f} m/s"] + frame.text
-    ax.set_title("   ".join(info), fontsize=8, loc="left")
+    ax.set_xlabel("x (m)", fontsize=9)
+    ax.tick_params(labelsize=9)
+    info = [f"t = {frame.step * 0.125:5.2f} s", f"ego {frame.speed[0]:4.1f} m/s"]
+    ax.set_title("   ".join(info + frame.text[:1]) + ("\n" + "   ".join(frame.text[1:]) if frame.text[1:] else ""),
+                 fontsize=10, loc="left")
+    ax.legend(handles=_legend_handles(), loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=4, fontsize=9,
+              frameon=False, handlelength=1.2, borderaxespad=0.2)
 
 
-def _figure():
+ROAD_MARGIN_M = 2.5  # room beside the outer lanes for zone names
+FIG_WIDTH_IN = 10.0
+HEADER_IN, FOOTER_IN = 0.75, 0.45  # title (two lines) + legend above the road, x axis below
+
+
+def _legend_handles():
+    import matplotlib.patches as patches
+
+    handles = [patches.Patch(facecolor=EGO_COLOUR, edgecolor="k", label="ego")]
+    handles += [patches.Patch(facecolor=STYLE_COLOURS[name], edgecolor="k", lw=0.5, label=f"{name} driver")
+                for name in STYLE_NAMES]
+    return handles
+
+
+def _figure(road: Road):
+    """A figure as wide as FIG_WIDTH_IN whose axes hold exactly the road's height at the view's scale."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(9, 2.6), dpi=90)
-    fig.subplots_adjust(left=0.02, right=0.98, bottom=0.22, top=0.85)
+    road_m = road.num_lanes * road.lane_width_m + 2 * ROAD_MARGIN_M
+    axes_in = FIG_WIDTH_IN * 0.96 * road_m / (VIEW_BEHIND_M + VIEW_AHEAD_M)
+    height = axes_in + HEADER_IN + FOOTER_IN
+    fig, ax = plt.subplots(figsize=(FIG_WIDTH_IN, height), dpi=90)
+    fig.subplots_adjust(left=0.02, right=0.98, bottom=FOOTER_IN / height, top=1 - HEADER_IN / height)
     return plt, fig, ax
 
 
 def frame_array(road: Road, frame: Frame) -> np.ndarray:
     """The frame as an (H, W, 3) uint8 image."""
-    plt, fig, ax = _figure()
+    plt, fig, ax = _figure(road)
     _draw(ax, road, frame)
     fig.canvas.draw()
     image = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
@@ -108,7 +131,7 @@ def frame_array(road: Road, frame: Frame) -> np.ndarray:
 
 
 def save_png(road: Road, frame: Frame, path: str | Path) -> Path:
-    plt, fig, ax = _figure()
+    plt, fig, ax = _figure(road)
     _draw(ax, road, frame)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -117,16 +140,20 @@ def save_png(road: Road, frame: Frame, path: str | Path) -> Path:
     return path
 
 
-def save_gif(road: Road, frames: list[Frame], path: str | Path, fps: int = 8) -> Path:
-    """Animated GIF of the frames (PIL writes it; one matplotlib canvas is reused for speed)."""
+def save_gif(road: Road, frames: list[Frame], path: str | Path, fps: int = 8, on_frame=None) -> Path:
+    """Animated GIF of the frames (PIL writes it; one matplotlib canvas is reused for speed).
+
+    on_frame(i), if given, is called after frame i is drawn (progress display)."""
     from PIL import Image
 
-    plt, fig, ax = _figure()
+    plt, fig, ax = _figure(road)
     images = []
-    for frame in frames:
+    for i, frame in enumerate(frames):
         _draw(ax, road, frame)
         fig.canvas.draw()
         images.append(Image.fromarray(np.asarray(fig.canvas.buffer_rgba())[..., :3]))
+        if on_frame is not None:
+            on_frame(i)
     plt.close(fig)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
