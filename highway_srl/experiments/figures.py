@@ -56,6 +56,15 @@ def _ok(v) -> bool:
     return v is not None and not (isinstance(v, float) and math.isnan(v))
 
 
+def cap_rate_axis(ax, top: float) -> None:
+    """A rate's axis ends at 100 % (`top`), not at matplotlib's margin above it; points on it stay whole."""
+    low, high = ax.get_ylim()
+    if high > top:
+        ax.set_ylim(max(low, 0.0), top)
+    for artist in ax.collections:
+        artist.set_clip_on(False)
+
+
 def deployment_pareto(results: T.Results, folder: Path) -> tuple[list[Path], T.Table]:
     plt = _pyplot()
     table = T.group1_deployment(results)
@@ -75,6 +84,7 @@ def deployment_pareto(results: T.Results, folder: Path) -> tuple[list[Path], T.T
              {lv: LEVEL_MARKERS[lv] for lv in TRAFFIC_LEVELS if lv in plotted_levels}, "level")
     ax.set_xlabel("average speed (m/s)")
     ax.set_ylabel("collision-free rate C_r (%)")
+    cap_rate_axis(ax, 100.0)
     ax.set_title("Deployment on two-lane, trained at level C (upper right is better)")
     ax.grid(alpha=0.3)
     if not plotted_methods:
@@ -104,6 +114,7 @@ def training_pareto(results: T.Results, folder: Path) -> tuple[list[Path], T.Tab
     ax.invert_xaxis()
     ax.set_xlabel("rise time of the episode return (env steps; reversed: faster to the right)")
     ax.set_ylabel("training collision-free rate T_c")
+    cap_rate_axis(ax, 1.0)
     ax.set_title("Training safety against learning speed (upper right is better)")
     ax.grid(alpha=0.3)
     if not plotted_methods:

@@ -120,10 +120,16 @@ def _figure(road: Road):
     return plt, fig, ax
 
 
-def frame_array(road: Road, frame: Frame) -> np.ndarray:
-    """The frame as an (H, W, 3) uint8 image."""
+def frame_figure(road: Road, frame: Frame):
+    """(pyplot, figure, axes) with the frame drawn; the caller closes the figure."""
     plt, fig, ax = _figure(road)
     _draw(ax, road, frame)
+    return plt, fig, ax
+
+
+def frame_array(road: Road, frame: Frame) -> np.ndarray:
+    """The frame as an (H, W, 3) uint8 image."""
+    plt, fig, ax = frame_figure(road, frame)
     fig.canvas.draw()
     image = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
     plt.close(fig)
@@ -131,8 +137,7 @@ def frame_array(road: Road, frame: Frame) -> np.ndarray:
 
 
 def save_png(road: Road, frame: Frame, path: str | Path) -> Path:
-    plt, fig, ax = _figure(road)
-    _draw(ax, road, frame)
+    plt, fig, ax = frame_figure(road, frame)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)

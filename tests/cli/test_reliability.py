@@ -354,15 +354,14 @@ def test_deployment_figure_keeps_rates_within_100_percent_with_intervals():
 def test_render_names_the_styles_and_the_reward_machine_state():
     from highway_srl.experiments.policy import rm_label
     from highway_srl.sim import World
-    from highway_srl.sim.render import _draw, _figure, capture
+    from highway_srl.sim.render import capture, frame_figure
 
     world = World("two-lane", "C", num_envs=1, seed=0)
-    plt, fig, ax = _figure(world.road)
-    _draw(ax, world.road, capture(world, text=["Faster by expert", rm_label(0)]))
+    plt, fig, ax = frame_figure(world.road, capture(world, text=["Faster by expert", rm_label(0)]))
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
     assert labels == ["ego", "aggressive driver", "normal driver", "cautious driver"]
     assert "RM state u1: in lane" in ax.get_title(loc="left")
-    assert ax.title.get_fontsize() >= 9 or ax._left_title.get_fontsize() >= 9
+    assert all(t.get_fontsize() >= 9 for t in ax.texts + ax.get_legend().get_texts())  # no 7 pt labels
     width, height = fig.get_size_inches()
     assert height < 0.3 * width  # cropped to the road, not a tall empty canvas
     plt.close(fig)
