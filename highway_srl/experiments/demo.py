@@ -47,7 +47,7 @@ def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0) -> 
                               progress=progress)
     finally:
         bar.close()
-    render_episode(run, None, "C", False, "idm", seed, out / "two-lane-C.gif")
+    render_episode(run, None, "C", False, "idm", seed, out / "two-lane-C.gif", progress=True)
     plot = _plot(report, out / "deployment.png")
     lines = ["# highway-srl demo", "",
              f"MoE-RM-SRL trained for {metrics['env_steps_per_seed']:,} steps on two-lane level C "
