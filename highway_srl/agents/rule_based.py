@@ -18,6 +18,7 @@ from __future__ import annotations
 import torch
 
 from highway_srl.constants import V_MAX_MPS, VEHICLE_LENGTH_M
+from highway_srl.scenarios import EXIT, MERGE, scenario_spec
 from highway_srl.rules import FASTER, IDLE, LANE_CHANGE, SLOWER, ModelStep, SafetyStep, choose_second
 from highway_srl.sim.traffic import idm_accel
 
@@ -60,10 +61,12 @@ def lane_change_wish(model: ModelStep, ego_v: torch.Tensor, scenario: str, hold_
     adjacent = lanes.adjacent_lane  # global lane LaneChange goes to (off the boundary), -1: none
     real = adjacent >= 0
     gain = a_adj - a_own
-    if scenario == "merge":
-        mandatory = real & (lanes.current_lane == 2) & (adjacent == 1)
-        allowed = real & (adjacent < 2)
-    elif scenario == "exit":
+    spec = scenario_spec(scenario)
+    ramp = spec.mainline_lanes
+    if spec.task == MERGE:
+        mandatory = real & (lanes.current_lane == ramp) & (adjacent == ramp - 1)
+        allowed = real & (adjacent < ramp)
+    elif spec.task == EXIT:
         mandatory = real & (adjacent == lanes.current_lane + 1)
         allowed = mandatory
     else:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import torch
 
 from highway_srl.constants import DT_S, V_MAX_MPS, VEHICLE_LENGTH_M
+from highway_srl.sim.policies import task_lane
 from highway_srl.sim.protocol import Backend
 from highway_srl.sim.traffic import idm_accel
 
@@ -26,11 +27,7 @@ def idm_ego_backend(backend: Backend) -> tuple[torch.Tensor, torch.Tensor]:
     road = backend.road
     lane = backend.ego_lane
     v = backend.ego_speed.float()
-    want = lane.clone()
-    if road.scenario == "merge":
-        want = torch.where(lane == 2, torch.ones_like(lane), lane)
-    elif road.scenario == "exit":
-        want = (lane + 1).clamp(max=2)
+    want = task_lane(road, lane)
     snap = backend.neighbours(lane, torch.where(want != lane, want, -torch.ones_like(lane)))
     w = road.lane_width_m
     gap_front = torch.where(snap.sv_valid[:, 0], snap.sv_x[:, 0] - snap.ego_x - VEHICLE_LENGTH_M, torch.full_like(v, 1e3))

@@ -28,10 +28,10 @@ import torch
 from highway_srl.constants import (
     D_MAX_M,
     EPISODE_STEPS,
-    SCENARIOS,
     STYLE_NAMES,
     TRAFFIC_LEVELS,
 )
+from highway_srl.scenarios import scenario_spec
 from highway_srl.sim import dynamics
 from highway_srl.sim.collision import lateral_half_extent
 from highway_srl.sim.road import Road, make_road
@@ -110,8 +110,7 @@ def _lane_neighbours(ws: WorldState, road: Road):
 def validate(scenario: str, traffic: str, style: str | None, num_vehicles: int | None, max_steps: int,
              max_vehicles: int = 63) -> int:
     """Check the arguments every backend shares (same messages as World); returns the number of SVs."""
-    if scenario not in SCENARIOS:
-        raise ValueError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
+    scenario_spec(scenario)  # raises the one-line error naming the scenarios
     if traffic not in TRAFFIC_LEVELS:
         raise ValueError(f"unknown traffic level {traffic!r}; choose one of {', '.join(TRAFFIC_LEVELS)}")
     if style is not None and style not in STYLE_NAMES:
@@ -235,7 +234,7 @@ class EpisodeCore:
         """SVs that fell out of the window around the ego and where they re-enter (dynamics.recycle)."""
         dx = np.abs(frame.x - frame.x[0])
         out = dx > self.layout.window_m + self.layout.margin_m  # World's reach: only beyond it does anyone move
-        if self.scenario == "exit":
+        if self.road.spec.svs_may_exit:  # an SV at the off-ramp's end leaves the map
             out |= (frame.lane == 2) & (frame.x >= self.road.zones["off_ramp"][1])
         out[0] = False
         if not out.any():
@@ -264,7 +263,7 @@ class EpisodeCore:
         success, failure = _call_like_world(dynamics.stage_events, ws, self.road, self.tables)
         success, failure = bool(success[0]), bool(failure[0])
         ws.t += 1
-        terminated = collision or failure or (success and self.scenario == "exit")
+        terminated = collision or failure or (success and self.road.spec.success_terminates)
         truncated = (self.t >= self.max_steps or ego_gone) and not terminated
         b = lambda v: torch.tensor([bool(v)])  # noqa: E731
         return StepEvents(b(collision), b(success), b(failure), b(terminated), b(truncated),

@@ -27,7 +27,7 @@ import torch
 
 from highway_srl.backends.episode import EpisodeCore, Frame, FrameQueries
 from highway_srl.constants import DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, EPISODE_STEPS, LANE_WIDTH_M, STYLES, V_MAX_MPS, VEHICLE_LENGTH_M
-from highway_srl.sim.road import EXIT_X, MERGE_X
+from highway_srl.scenarios import EXIT_X, MERGE_X, scenario_spec
 from highway_srl.sim.state import EXIT_INTENT, MERGE_INTENT, NO_INTENT
 from highway_srl.sim.traffic import (
     IDM_ACCEL_MPS2,
@@ -114,9 +114,10 @@ def _env_class(scenario: str):
     from highway_env.envs.highway_env import HighwayEnv
     from highway_env.envs.merge_env import ConnectedLaneMergeGenericEnv
 
-    if scenario in ("two-lane", "multi-lane"):
+    kind = scenario_spec(scenario).highway_env_kind
+    if kind == "highway":
         return HighwayEnv
-    if scenario == "merge":
+    if kind == "merge":
         return ConnectedLaneMergeGenericEnv
 
     class OurExitEnv(ConnectedLaneExitEnv):
@@ -133,7 +134,7 @@ def _env_class(scenario: str):
 def env_config(scenario: str, max_steps: int, frames_per_step: int) -> dict:
     """highway-env configuration with the paper's constants where its API takes them."""
     cfg = {
-        "lanes_count": 3 if scenario == "multi-lane" else 2,
+        "lanes_count": scenario_spec(scenario).mainline_lanes,
         "vehicles_count": 0,  # we place our own traffic
         "controlled_vehicles": 1,
         "policy_frequency": POLICY_FREQUENCY_HZ,
@@ -143,7 +144,7 @@ def env_config(scenario: str, max_steps: int, frames_per_step: int) -> dict:
         "other_vehicles_type": "highway_env.vehicle.behavior.IDMVehicle",
         "offroad_terminal": False,
     }
-    if scenario == "merge":
+    if scenario_spec(scenario).highway_env_kind == "merge":
         cfg.update({
             "before_merge_length": X_SHIFT_M + MERGE_APPROACH_M,
             "converge_merge_length": MERGE_X["x1"] - MERGE_APPROACH_M,
@@ -242,7 +243,7 @@ class HighwayEnvBackend(FrameQueries):
         road.vehicles.clear()
         self._build_lane_table()
         road.neighbour_vehicles = _ConnectedNeighbours(road, self._lanes)
-        if self.scenario == "merge":
+        if self.road.spec.highway_env_kind == "merge":
             # highway-env's wall at the end of the on-ramp is a 2 m box centred on the lane end; ours is a wall
             # whose face is the lane end: move the box forward by half its length
             end = self._lane_at(MERGE_X["x2"] - 1.0, 2)

@@ -216,8 +216,9 @@ class SumoBackend(FrameQueries):
         return e.lanes - 1 - (lane - e.first_lane)
 
     def _destination(self, lane: int, intent: int) -> str:
-        if self.scenario == "exit" and (intent == EXIT_INTENT or lane == 2):
-            return "off"
+        off = self.road.spec.sumo_off_ramp_edge
+        if off is not None and (intent == EXIT_INTENT or lane == self.road.mainline_lanes):
+            return off
         return self._mainline_end
 
     def _add(self, j: int, x: float, lane: int, v: float, intent: int) -> None:
@@ -317,7 +318,7 @@ class SumoBackend(FrameQueries):
         centred = abs(f.y[0] - lane * self.road.lane_width_m) < 0.05
         if target != lane and centred and edge.first_lane <= target < edge.first_lane + edge.lanes:
             api.vehicle.changeLane(EGO_ID, self._sumo_lane(edge, target), DT_S)
-        if self.scenario == "exit" and edge.id in ("up", "div"):
+        if edge.id in self.road.spec.sumo_route_edges:
             dest = self._destination(lane, 0)
             if dest != self._ego_dest:
                 api.vehicle.changeTarget(EGO_ID, dest)

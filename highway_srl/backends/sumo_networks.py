@@ -28,13 +28,13 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from highway_srl.constants import LANE_WIDTH_M, SCENARIOS, V_MAX_MPS
-from highway_srl.sim.road import EXIT_X, MERGE_X
+from highway_srl.constants import LANE_WIDTH_M, V_MAX_MPS
+from highway_srl.scenarios import OFF_RAMP_END_M, SPECS, scenario_spec
 
 NET_DIR = Path(__file__).with_name("sumo")
 X_START_M = -400.0  # mainline start: room for the traffic behind the ego
 X_END_M = 1600.0  # mainline end: a 40 s episode at 10 m/s plus the traffic ahead fits with room to spare
-OFF_RAMP_END_M = 450.0  # the off-ramp edge runs past x3_suc (220 m) so success is reached before its end
+# OFF_RAMP_END_M (scenarios.py): the off-ramp edge runs past x3_suc (220 m) so success is reached before its end
 
 
 @dataclass(frozen=True)
@@ -47,39 +47,16 @@ class EdgeSpec:
 
 
 def edges_of(scenario: str) -> tuple[EdgeSpec, ...]:
-    """The edges of one scenario with our lane numbering; raises ValueError naming the scenarios."""
-    if scenario == "two-lane":
-        return (EdgeSpec("main", X_START_M, X_END_M, 2, 0),)
-    if scenario == "multi-lane":
-        return (EdgeSpec("main", X_START_M, X_END_M, 3, 0),)
-    if scenario == "merge":
-        x1, x2 = MERGE_X["x1"], MERGE_X["x2"]
-        return (
-            EdgeSpec("up", X_START_M, x1, 2, 0),
-            EdgeSpec("ramp", X_START_M, x1, 1, 2),
-            EdgeSpec("mrg", x1, x2, 3, 0),
-            EdgeSpec("down", x2, X_END_M, 2, 0),
-        )
-    if scenario == "exit":
-        x1, x2 = EXIT_X["x1"], EXIT_X["x2"]
-        return (
-            EdgeSpec("up", X_START_M, x1, 2, 0),
-            EdgeSpec("div", x1, x2, 3, 0),
-            EdgeSpec("down", x2, X_END_M, 2, 0),
-            EdgeSpec("off", x2, OFF_RAMP_END_M, 1, 2),
-        )
-    raise ValueError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
+    """The edges of one scenario (its spec's sumo_edges) with our lane numbering; the network's start and
+    end where the spec leaves them open. Raises ValueError naming the scenarios."""
+    return tuple(EdgeSpec(e.id, X_START_M if e.x_from_m is None else e.x_from_m,
+                          X_END_M if e.x_to_m is None else e.x_to_m, e.lanes, e.first_lane)
+                 for e in scenario_spec(scenario).sumo_edges)
 
 
-# (from edge, our lane) -> (to edge, our lane): every lane-to-lane link; lanes not listed end there
 def links_of(scenario: str) -> tuple[tuple[str, int, str, int], ...]:
-    if scenario == "merge":
-        return (("up", 0, "mrg", 0), ("up", 1, "mrg", 1), ("ramp", 2, "mrg", 2), ("mrg", 0, "down", 0),
-                ("mrg", 1, "down", 1))
-    if scenario == "exit":
-        return (("up", 0, "div", 0), ("up", 1, "div", 1), ("div", 0, "down", 0), ("div", 1, "down", 1),
-                ("div", 2, "off", 2))
-    return ()
+    """(from edge, our lane) -> (to edge, our lane): every lane-to-lane link; lanes not listed end there."""
+    return scenario_spec(scenario).sumo_links
 
 
 def _xml(scenario: str) -> tuple[str, str, str]:
@@ -98,10 +75,10 @@ def _xml(scenario: str) -> tuple[str, str, str]:
     edge_lines = []
     for e in edges:
         y_line = -e.first_lane * w
-        # ramps start and end at the mainline's node where they join or leave it; their shape keeps them
-        # straight at the lane-2 position
+        # ramps start and end at the mainline's node where they join or leave it (their own node only at the
+        # network's ends); their shape keeps them straight at the lane-2 position
         a = node(e.x_from, 0.0 if e.first_lane == 0 or e.x_from != X_START_M else y_line)
-        b = node(e.x_to, 0.0 if e.first_lane == 0 or e.x_to <= EXIT_X["x2"] else y_line)
+        b = node(e.x_to, 0.0 if e.first_lane == 0 or e.x_to not in (X_END_M, OFF_RAMP_END_M) else y_line)
         shape = f'{e.x_from:.2f},{y_line:.2f} {e.x_to:.2f},{y_line:.2f}'
         edge_lines.append(
             f'    <edge id="{e.id}" from="{a}" to="{b}" numLanes="{e.lanes}" speed="{V_MAX_MPS:.2f}" '
@@ -193,7 +170,7 @@ def network_path(scenario: str) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     out_dir = Path(argv[0]) if argv else NET_DIR
-    for scenario in SCENARIOS:
+    for scenario in SPECS:
         path = build_network(scenario, out_dir / f"{scenario}.net.xml")
         print(f"wrote {path}")
     return 0

@@ -113,25 +113,21 @@ def change_fits_window(road: Road, ego_lane: torch.Tensor, target_lane: torch.Te
 
 def _base_lane(road: Road, ego_x: torch.Tensor, ego_lane: torch.Tensor) -> torch.Tensor:
     """The pair each scenario's prose assigns when the ego keeps its lane (§3.3, ID mapping)."""
-    if road.scenario == "two-lane":
-        return torch.zeros_like(ego_lane)
-    if road.scenario == "multi-lane":
-        return (ego_lane - 1).clamp(min=0)  # lane 0 -> (0,1); lane 1 -> (0,1) primary; lane 2 -> (1,2)
-    if road.scenario == "merge":
-        x1, x2 = _zone(road, "merging")
-        in_merging = (ego_x >= x1) & (ego_x < x2)
-        # on-ramp and merging zone: the ramp is local 1, mainline lane 1 local 0; in the merging zone the
-        # ego in lane 1 keeps that pair (its frame does not jump mid-merge); stability zone: lanes 0/1.
-        ramp_pair = (ego_lane == 2) | ((ego_lane == 1) & in_merging)
-        return torch.where(ramp_pair, torch.ones_like(ego_lane), torch.zeros_like(ego_lane))
-    if road.scenario == "exit":
-        x1, x2 = _zone(road, "diverging")
-        in_diverging = (ego_x >= x1) & (ego_x < x2)
-        # diverging zone: the current lane 1 is local 0, the off-ramp's deceleration lane local 1;
-        # off-ramp (lane 2): local 1 with lane 1 local 0; preparation and continuation: lanes 0/1.
-        ramp_pair = (ego_lane == 2) | ((ego_lane == 1) & in_diverging)
-        return torch.where(ramp_pair, torch.ones_like(ego_lane), torch.zeros_like(ego_lane))
-    raise ValueError(f"unknown scenario {road.scenario!r}")
+    spec = road.spec
+    if spec.change_zone is None:
+        # expressway: lane 0 -> (0,1); lane 1 -> (0,1) primary; lane 2 -> (1,2) (clamped to the road later,
+        # so on two lanes every lane gets (0,1))
+        return (ego_lane - 1).clamp(min=0)
+    # ramp road (right mainline lane r-1, ramp r): merge: on the on-ramp and in the merging zone the ramp is
+    # local 1 and mainline lane 1 local 0; in the merging zone the ego in lane 1 keeps that pair (its frame
+    # does not jump mid-merge); stability zone: lanes 0/1. exit: in the diverging zone the current lane 1 is
+    # local 0, the off-ramp's deceleration lane local 1; on the off-ramp local 1 with lane 1 local 0;
+    # preparation and continuation: lanes 0/1.
+    ramp = road.mainline_lanes
+    x1, x2 = _zone(road, spec.change_zone)
+    in_zone = (ego_x >= x1) & (ego_x < x2)
+    ramp_pair = (ego_lane == ramp) | ((ego_lane == ramp - 1) & in_zone)
+    return torch.where(ramp_pair, torch.full_like(ego_lane, ramp - 1), torch.zeros_like(ego_lane))
 
 
 def _lane_model(road: Road, ego_x: torch.Tensor, ego_lane: torch.Tensor, base: torch.Tensor) -> LaneModel:
@@ -162,7 +158,7 @@ def id_mapping(
         base = torch.where(changing, torch.minimum(target_lane, ego_lane), base)
     base = base.clamp(0, max(road.num_lanes - 2, 0))
     primary = _lane_model(road, ego_x, ego_lane, base)
-    if road.scenario == "multi-lane":
+    if road.spec.id_two_models:
         two = (ego_lane == 1) & ~changing
         second = _lane_model(road, ego_x, ego_lane, torch.where(two, torch.ones_like(base), base))
     else:

@@ -17,7 +17,9 @@ from statistics import NormalDist
 
 import torch
 
-from highway_srl.constants import EPISODE_STEPS, SCENARIOS
+from highway_srl.constants import EPISODE_STEPS
+from highway_srl.rules.reward_machine import FLAG_ARGUMENT, weighted_sum
+from highway_srl.scenarios import scenario_spec
 
 # Student t 97.5% quantiles for 1..30 degrees of freedom (two-sided 95%)
 _T975 = (12.7062, 4.3027, 3.1824, 2.7764, 2.5706, 2.4469, 2.3646, 2.3060, 2.2622, 2.2281, 2.2010, 2.1788, 2.1604,
@@ -36,20 +38,17 @@ def deployment_step_reward(
 ) -> torch.Tensor:
     """One step's term of R_r, (B,): speed_ratio (B,) v/v*; r_star (B, 4) bool (expressway);
     r_merge (B,) 0/1 (merge); r_exit1, r_exit2 (B,) 0/1 (exit)."""
-    if scenario not in SCENARIOS:
-        raise ValueError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
-    f = lambda t: t.to(speed_ratio.dtype)  # noqa: E731
-    if scenario == "merge":
-        if r_merge is None:
-            raise ValueError("the merge deployment reward needs r_merge")
-        return 0.7 * speed_ratio + 0.3 * f(r_merge)
-    if scenario == "exit":
-        if r_exit1 is None or r_exit2 is None:
-            raise ValueError("the exit deployment reward needs r_exit1 and r_exit2")
-        return 0.5 * speed_ratio + 0.3 * (f(r_exit1) + f(r_exit2))
-    if r_star is None:
+    spec = scenario_spec(scenario)
+    given = {"merged": r_merge, "exit1": r_exit1, "exit2": r_exit2}
+    if r_star is not None:
+        given.update(r_star_sv1=r_star[..., 0], r_star_sv2=r_star[..., 1])
+    names = [i for t in spec.deployment_terms for i in t.inputs]
+    missing = [i for i in names if given.get(i) is None]
+    if any(i.startswith("r_star") for i in missing):
         raise ValueError(f"the {scenario} deployment reward needs r_star (R*_SV1..4)")
-    return 0.5 * speed_ratio + 0.25 * f(r_star[..., 0]) + 0.25 * f(r_star[..., 1])
+    if missing:
+        raise ValueError(f"the {scenario} deployment reward needs {' and '.join(FLAG_ARGUMENT[i] for i in names)}")
+    return weighted_sum(spec.deployment_main_weight, speed_ratio, spec.deployment_terms, given)
 
 
 def deployment_episode_reward(

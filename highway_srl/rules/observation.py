@@ -43,12 +43,10 @@ def observation_ranges() -> torch.Tensor:
 def ego_progress_feature(road: Road, ego_x: torch.Tensor) -> torch.Tensor:
     """(x_key - x_EV) / 100 m clipped to [-3, 3]: merge x_key = x2 (stability zone), exit x_key = x2 (end of
     the diverging zone, where the off-ramp leaves); 0 on two-lane and multi-lane. (B,)."""
-    if road.scenario == "merge":
-        key = road.zones["merging"][1]
-    elif road.scenario == "exit":
-        key = road.zones["diverging"][1]
-    else:
+    zone = road.spec.progress_zone
+    if zone is None:
         return torch.zeros_like(ego_x)
+    key = road.zones[zone][1]
     return ((key - ego_x) / PROGRESS_SCALE_M).clamp(-PROGRESS_CLIP, PROGRESS_CLIP)
 
 

@@ -18,7 +18,24 @@ from typing import Callable, Generic, TypeVar
 
 import torch
 
-from highway_srl.constants import EPISODE_STEPS, LANE_WIDTH_M, SCENARIOS, V_MAX_MPS
+from highway_srl.constants import EPISODE_STEPS, LANE_WIDTH_M, V_MAX_MPS
+from highway_srl.scenarios import RewardTerm, scenario_spec
+
+# the keyword argument of the reward functions that carries each stage flag of the specs' reward terms
+FLAG_ARGUMENT = {"merged": "r_merge", "exit1": "r_exit1", "exit2": "r_exit2"}
+
+
+def weighted_sum(main_weight: float, main: torch.Tensor, terms: tuple[RewardTerm, ...],
+                 inputs: dict[str, torch.Tensor | None]) -> torch.Tensor:
+    """main_weight * main + each term's weight * (sum of its inputs), added left to right in the spec's order
+    (the order fixes the float rounding, so it is the order the paper's equations are written in). (B,)"""
+    r = main if main_weight == 1.0 else main_weight * main
+    for term in terms:
+        total = inputs[term.inputs[0]].to(main.dtype)
+        for name in term.inputs[1:]:
+            total = total + inputs[name].to(main.dtype)
+        r = r + term.weight * total
+    return r
 
 P = TypeVar("P")
 
@@ -151,18 +168,10 @@ def scenario_reward(
     reached the stability zone in a mainline lane; exit1: it has entered lane 1, next to the off-ramp;
     exit2: it has entered the off-ramp lane 2).
     """
-    if scenario not in SCENARIOS:
-        raise ValueError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
-    needed = {"merge": ("r_merge",), "exit": ("r_exit1", "r_exit2")}.get(scenario, ())
-    given = {"r_merge": r_merge, "r_exit1": r_exit1, "r_exit2": r_exit2}
-    missing = [name for name in needed if given[name] is None]
+    spec = scenario_spec(scenario)
+    given = {"merged": r_merge, "exit1": r_exit1, "exit2": r_exit2}
+    missing = [FLAG_ARGUMENT[i] for t in spec.training_terms for i in t.inputs if given[i] is None]
     if missing:
         raise ValueError(f"scenario {scenario!r} needs the stage flags {', '.join(missing)}")
-    f = lambda x: x.to(r_rm.dtype)  # noqa: E731
-    if scenario == "merge":
-        r = 0.7 * r_rm + 0.3 * f(r_merge)
-    elif scenario == "exit":
-        r = 0.5 * r_rm + 0.25 * f(r_exit1) + 0.25 * f(r_exit2)
-    else:
-        r = r_rm
+    r = weighted_sum(spec.training_main_weight, r_rm, spec.training_terms, given)
     return torch.where(collided.bool(), torch.full_like(r, collision_reward), r)

@@ -17,6 +17,7 @@ from highway_srl.constants import (
     VEHICLE_LENGTH_M,
     TrafficLevel,
 )
+from highway_srl.scenarios import EXIT, MERGE
 from highway_srl.sim import rng
 from highway_srl.sim.collision import CONTACT_REACH_M, boxes_overlap, front_x_in_band, lateral_half_extent
 from highway_srl.sim.road import Road
@@ -487,12 +488,13 @@ def stage_events(s: WorldState, road: Road) -> tuple[torch.Tensor, torch.Tensor]
     """Latch the merge / exit stage flags; return (success, failure) events of this step (B,)."""
     lane, x = s.lane[:, 0], s.x[:, 0]
     none = torch.zeros_like(lane, dtype=torch.bool)
-    if road.scenario == "merge":
+    task = road.spec.task
+    if task == MERGE:
         now = (lane < road.mainline_lanes) & (x >= road.zones["stability"][0])
         success = now & ~s.merged
         s.merged |= now
         return success, none
-    if road.scenario == "exit":
+    if task == EXIT:
         s.exit1 |= lane == 1
         s.exit2 |= lane == 2
         end = road.zones["off_ramp"][1]
@@ -551,7 +553,7 @@ def recycle(s: WorldState, road: Road, layout: Layout, level: TrafficLevel) -> N
     dx = s.x - ego_x
     ahead_out, behind_out = dx > reach, dx < -reach
     to_back = ahead_out.clone()
-    if road.scenario == "exit":
+    if road.spec.svs_may_exit:  # an SV at the off-ramp's end leaves the map
         to_back |= (s.lane == 2) & (s.x >= road.zones["off_ramp"][1])
     to_back[:, 0] = False
     to_front = behind_out.clone()
@@ -610,7 +612,7 @@ def recycle(s: WorldState, road: Road, layout: Layout, level: TrafficLevel) -> N
     put("lane", torch.where(moving, new_lane, lane))
     put("target_lane", torch.where(moving, new_lane, tgt))
     put("forced", sub(s.forced) & ~moving)
-    if road.scenario == "exit":
+    if road.spec.svs_may_exit:
         exits = rng.uniform(rng.key(sub(s.seed), sub(s.episode), sub(s.t), S_RECYCLE_INTENT)) < EXIT_INTENT_PROB
         fresh = torch.where(exits, EXIT_INTENT, NO_INTENT)[:, None]
     else:

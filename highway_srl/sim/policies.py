@@ -12,9 +12,11 @@ from __future__ import annotations
 import torch
 
 from highway_srl.constants import DT_S, V_MAX_MPS, VEHICLE_LENGTH_M
+from highway_srl.scenarios import EXIT, MERGE
 from highway_srl.sim.collision import front_x_in_band, lateral_half_extent
 from highway_srl.sim.dynamics import CENTRED_M, COMMITTED_M, WALL_JAM_CHANGING_M
 from highway_srl.sim.traffic import LANE_CHANGE_TIME_S, OCCUPANCY_MARGIN_M, idm_accel
+from highway_srl.sim.road import Road
 from highway_srl.sim.world import World
 
 EGO_JAM_M = 2 * VEHICLE_LENGTH_M
@@ -44,6 +46,17 @@ def _nearest(world: World, lane: torch.Tensor, ahead: bool):
     return gap, s.v[:, 1:].gather(1, i[:, None])[:, 0]
 
 
+def task_lane(road: Road, lane: torch.Tensor) -> torch.Tensor:
+    """(B,) long: the lane the ego's task sends it to from `lane` (B,) long: merge: off the on-ramp into the
+    mainline's right lane; exit: one lane to the right until it is on the off-ramp; cruise: its own lane."""
+    task, ramp = road.spec.task, road.mainline_lanes
+    if task == MERGE:
+        return torch.where(lane == ramp, torch.full_like(lane, ramp - 1), lane)
+    if task == EXIT:
+        return (lane + 1).clamp(max=ramp)
+    return lane.clone()
+
+
 def idm_ego(world: World) -> tuple[torch.Tensor, torch.Tensor]:
     """(target_lane (B,), target_speed (B,)) for the ego of every env."""
     s, road = world.state, world.road
@@ -51,11 +64,7 @@ def idm_ego(world: World) -> tuple[torch.Tensor, torch.Tensor]:
     w = road.lane_width_m
     x, y, v = s.x[:, 0], s.y[:, 0], s.v[:, 0]
     lane, tgt = s.lane[:, 0], s.target_lane[:, 0]
-    want = lane.clone()
-    if road.scenario == "merge":
-        want = torch.where(lane == 2, torch.ones_like(lane), lane)
-    elif road.scenario == "exit":
-        want = (lane + 1).clamp(max=2)
+    want = task_lane(road, lane)
     changing = tgt != lane
     offset = (y - lane.float() * w).abs()
 

@@ -19,7 +19,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from highway_srl.constants import LANE_WIDTH_M, SCENARIOS
+from highway_srl.constants import LANE_WIDTH_M
+from highway_srl.scenarios import EXIT_X, MERGE_X, ScenarioSpec, scenario_spec  # noqa: F401  (MERGE_X, EXIT_X: re-exported)
 
 INF = math.inf
 
@@ -39,6 +40,10 @@ class Road:
     lane_width_m: float = LANE_WIDTH_M
 
     @property
+    def spec(self) -> ScenarioSpec:
+        return scenario_spec(self.scenario)
+
+    @property
     def has_ramp(self) -> bool:
         return self.num_lanes > self.mainline_lanes
 
@@ -54,53 +59,20 @@ class Road:
         return (self.num_lanes - 0.5) * self.lane_width_m
 
 
-# Zone lengths are not given by the paper; these are chosen so that an ego at 5-10 m/s reaches each zone
-# well inside the 320-step (40 s) episode and has several seconds in the merging / diverging zone.
-MERGE_X = {"x0": 0.0, "x1": 60.0, "x2": 160.0, "x3": INF}
-# Short enough that level-C traffic (about 6.5 m/s) reaches the end within the 40 s episode (210 m from the
-# ego's start at x = 10 needs 5.3 m/s on average); see docs/paper-notes.md, "Roads".
-EXIT_X = {"x0": 0.0, "x1": 60.0, "x2": 140.0, "x3_suc": 220.0, "x3_fail": 220.0}
-
-
 def make_road(scenario: str) -> Road:
-    """The road of one scenario; raises ValueError naming the allowed scenarios."""
-    if scenario == "two-lane":
-        return Road(scenario, 2, 2, (-INF, -INF), (INF, INF), (False, False), ((-INF, INF),))
-    if scenario == "multi-lane":
-        return Road(
-            scenario, 3, 3, (-INF,) * 3, (INF,) * 3, (False,) * 3, ((-INF, INF), (-INF, INF)), ego_start_lanes=(0, 1, 2)
-        )
-    if scenario == "merge":
-        m = MERGE_X
-        return Road(
-            scenario,
-            3,
-            2,
-            (-INF, -INF, -INF),
-            (INF, INF, m["x2"]),
-            (False, False, True),
-            ((-INF, INF), (m["x1"], m["x2"])),
-            zones={"on_ramp": (m["x0"], m["x1"]), "merging": (m["x1"], m["x2"]), "stability": (m["x2"], m["x3"])},
-            ego_start_lanes=(2,),
-            ego_start_x_m=10.0,
-        )
-    if scenario == "exit":
-        e = EXIT_X
-        return Road(
-            scenario,
-            3,
-            2,
-            (-INF, -INF, e["x1"]),
-            (INF, INF, e["x3_suc"]),
-            (False, False, False),
-            ((-INF, INF), (e["x1"], e["x2"])),
-            zones={
-                "exit_preparation": (e["x0"], e["x1"]),
-                "diverging": (e["x1"], e["x2"]),
-                "mainline_continuation": (e["x2"], e["x3_fail"]),
-                "off_ramp": (e["x2"], e["x3_suc"]),
-            },
-            ego_start_lanes=(0,),
-            ego_start_x_m=10.0,
-        )
-    raise ValueError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
+    """The road of one scenario, built from its spec; raises ValueError naming the allowed scenarios.
+
+    The mainline lanes exist everywhere and may be crossed anywhere; a ramp lane (if the spec has one) is
+    one more lane on the right over spec.ramp_span_m, crossable to / from the mainline in spec.change_zone.
+    """
+    spec = scenario_spec(scenario)
+    n = spec.mainline_lanes
+    starts, ends, drops = [-INF] * n, [INF] * n, [False] * n
+    windows = [(-INF, INF)] * (n - 1)
+    if spec.ramp_span_m is not None:
+        starts.append(spec.ramp_span_m[0])
+        ends.append(spec.ramp_span_m[1])
+        drops.append(spec.ramp_drops)
+        windows.append(spec.zones[spec.change_zone])
+    return Road(scenario, len(starts), n, tuple(starts), tuple(ends), tuple(drops), tuple(windows),
+                zones=dict(spec.zones), ego_start_lanes=spec.ego_start_lanes, ego_start_x_m=spec.ego_start_x_m)

@@ -46,7 +46,7 @@ class Layout:
 def make_layout(road: Road, level: TrafficLevel, num_vehicles: int) -> Layout:
     m = num_vehicles
     lanes, ramp = [], []
-    n_ramp = max(1, m // 8) if road.scenario == "merge" else 0
+    n_ramp = max(1, m // 8) if road.spec.svs_start_on_ramp else 0
     for j in range(m):
         if j < n_ramp:
             lanes.append(2)
@@ -134,9 +134,9 @@ def spawn(
     v0[:, 0] = V_MAX_MPS
 
     intent = torch.full((b, n), NO_INTENT, dtype=torch.long, device=dev)
-    if road.scenario == "merge":
+    if road.spec.svs_start_on_ramp:
         intent[:, 1:] = torch.where(layout.ramp.to(dev), MERGE_INTENT, NO_INTENT).expand(b, m)
-    elif road.scenario == "exit":
+    elif road.spec.svs_may_exit:
         exits = rng.uniform(key(S_INTENT), m) < EXIT_INTENT_PROB
         intent[:, 1:] = torch.where(exits, EXIT_INTENT, NO_INTENT)
     offsets = torch.tensor(ADVERSARIAL_TRIGGER_OFFSETS_M, device=dev)

@@ -16,12 +16,12 @@ from highway_srl.constants import (
     EGO_ACCEL_MAX_MPS2,
     EGO_BRAKE_MAX_MPS2,
     EPISODE_STEPS,
-    SCENARIOS,
     STYLE_NAMES,
     TRAFFIC_LEVELS,
     V_MAX_MPS,
     VEHICLE_LENGTH_M,
 )
+from highway_srl.scenarios import scenario_spec
 from highway_srl.sim import dynamics
 from highway_srl.sim.road import Road, make_road
 from highway_srl.sim.snapshot import LANE_END, NO_VEHICLE, Snapshot
@@ -76,8 +76,7 @@ class World:
         num_vehicles: int | None = None,
         max_steps: int = EPISODE_STEPS,
     ):
-        if scenario not in SCENARIOS:
-            raise ValueError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
+        scenario_spec(scenario)  # raises the one-line error naming the scenarios
         if traffic not in TRAFFIC_LEVELS:
             raise ValueError(f"unknown traffic level {traffic!r}; choose one of {', '.join(TRAFFIC_LEVELS)}")
         if not isinstance(num_envs, int) or num_envs < 1:
@@ -136,7 +135,7 @@ class World:
         success, failure = dynamics.stage_events(s, self.road)
         dynamics.recycle(s, self.road, self.layout, self.level)
         s.t += 1
-        terminated = collision | failure | (success & (self.road.scenario == "exit"))
+        terminated = collision | failure | (success & self.road.spec.success_terminates)
         truncated = (s.t >= self.max_steps) & ~terminated
         return StepEvents(collision, success, failure, terminated, truncated, sv_collisions)
 
