@@ -7,20 +7,18 @@ an event mean the same on every backend and follow any change to World's semanti
 
 - the initial placement: sim/spawn.spawn (same vehicles, styles, headways, speeds per seed and episode);
 - which commanded ego lane changes are accepted: LaneTables.can_change;
-- the adversarial cut-in trigger and its random draw: dynamics._adversarial_cut_ins;
-- keeping the flow centred on the ego: dynamics.recycle (who moves, to which lane, where, how fast);
-- the ego's collisions (boxes, lane ends, change windows, road edges): dynamics.ego_collision;
-- stage flags and success / failure events: dynamics.stage_events; termination and truncation as World;
-- the neighbour snapshot: World.neighbours itself.
+- the adversarial cut-in trigger and its random draw: adversary.safe_distance_cut_ins;
+- keeping the flow centred on the ego: recycle.recycle (who moves, to which lane, where, how fast);
+- the ego's collisions (boxes, lane ends, change windows, road edges): contacts.ego_collision;
+- stage flags and success / failure events: contacts.stage_events; termination and truncation as World;
+- the neighbour snapshot: world.ego_neighbours, the function behind World.neighbours.
 
 The backend turns the results into commands for its simulator (a forced lane change, a vehicle moved).
 """
 
 from __future__ import annotations
 
-import inspect
-from dataclasses import dataclass
-from types import SimpleNamespace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -32,14 +30,16 @@ from highway_srl.constants import (
     TRAFFIC_LEVELS,
 )
 from highway_srl.scenarios import scenario_spec
-from highway_srl.sim import dynamics
-from highway_srl.sim.collision import lateral_half_extent
+from highway_srl.sim.adversary import safe_distance_cut_ins
+from highway_srl.sim.contacts import ego_collision, stage_events
+from highway_srl.sim.lane_tables import LaneTables
+from highway_srl.sim.recycle import recycle
 from highway_srl.sim.road import Road, make_road
 from highway_srl.sim.snapshot import Snapshot
 from highway_srl.sim.spawn import Layout, make_layout, spawn
 from highway_srl.sim.state import WorldState
-from highway_srl.sim.traffic import lane_neighbours
-from highway_srl.sim.world import StepEvents, World
+from highway_srl.sim.traffic_model import CENTRED_M, find_neighbours
+from highway_srl.sim.world import StepEvents, ego_neighbours
 
 FAR_M = 1.0e9  # x of a vehicle that is not on the road right now (never within d_max of anything)
 
@@ -79,34 +79,6 @@ class Move:
     intent: int
 
 
-def _call_like_world(fn, ws: WorldState, road: Road, tables, **extra):
-    """Call one of dynamics' step functions with the arguments World.step gives it, by parameter name:
-    s, road, tables, layout / level, and the neighbour structure (nb, or leader / follower) computed from
-    the state as World computes it, when the function asks for it."""
-    params = inspect.signature(fn).parameters
-    args = {"s": ws, "road": road, "tables": tables, **extra}
-    if "nb" in params:
-        args["nb"] = dynamics.find_neighbours(ws, road)
-    if "leader" in params or "follower" in params:
-        args["leader"], args["follower"] = _lane_neighbours(ws, road)
-    missing = [n for n, p in params.items() if n not in args and p.default is inspect.Parameter.empty]
-    if missing:
-        raise TypeError(f"{fn.__module__}.{fn.__name__} now needs {', '.join(missing)}; update backends/episode.py")
-    return fn(**{name: args[name] for name in params if name in args})
-
-
-def _lane_neighbours(ws: WorldState, road: Road):
-    """(K, 1, N) leader and follower indices per lane, with lanes occupied as World.advance occupies them."""
-    try:
-        from highway_srl.sim.traffic import occupancy
-    except ImportError:  # an older traffic model: own lane and target lane only
-        occ = torch.stack([(ws.lane == k) | (ws.target_lane == k) for k in range(road.num_lanes)])
-    else:
-        half = lateral_half_extent(ws.heading)
-        occ = occupancy(ws.y, half, ws.lane, ws.target_lane, road.num_lanes, road.lane_width_m)
-    return lane_neighbours(ws.x, occ)
-
-
 def validate(scenario: str, traffic: str, style: str | None, num_vehicles: int | None, max_steps: int,
              max_vehicles: int = 63) -> int:
     """Check the arguments every backend shares (same messages as World); returns the number of SVs."""
@@ -138,7 +110,7 @@ class EpisodeCore:
         self.num_vehicles = m + 1
         self.max_steps = max_steps
         self.style = None if style is None else STYLE_NAMES.index(style)
-        self.tables = dynamics.LaneTables.of(self.road, "cpu")
+        self.tables = LaneTables.of(self.road, "cpu")
         self.seed, self.episode = seed, 0
         self.new_episode(0)
 
@@ -206,7 +178,7 @@ class EpisodeCore:
 
     # ------------------------------------------------------------------ adversarial cut-ins
     def adversarial_cut_ins(self, frame: Frame) -> list[int]:
-        """SVs that start a forced cut-in into the ego's lane this step (dynamics._adversarial_cut_ins)."""
+        """SVs that start a forced cut-in into the ego's lane this step (adversary.safe_distance_cut_ins)."""
         if not self.adversarial:
             return []
         near = frame.present & (np.abs(frame.lane - frame.lane[0]) == 1) & (frame.x - frame.x[0] < D_MAX_M)
@@ -215,7 +187,7 @@ class EpisodeCore:
             return []  # nothing can trigger; skips the tensor work on most steps
         ws = self.sync(frame)
         before = ws.forced.clone()
-        _call_like_world(dynamics._adversarial_cut_ins, ws, self.road, self.tables)
+        safe_distance_cut_ins(ws, self.tables, find_neighbours(ws, self.road))
         fired = (ws.forced & ~before)[0].numpy() & frame.present
         self.forced_lane = np.where(fired, int(frame.lane[0]), self.forced_lane)
         return [int(i) for i in np.nonzero(fired)[0]]
@@ -224,14 +196,14 @@ class EpisodeCore:
         """Forced SVs that have arrived centred in their target lane (World clears `forced` then)."""
         forced = self.ws.forced[0].numpy()
         done = forced & (frame.lane == self.forced_lane) & (
-            np.abs(frame.y - self.forced_lane * self.road.lane_width_m) < dynamics.CENTRED_M)
+            np.abs(frame.y - self.forced_lane * self.road.lane_width_m) < CENTRED_M)
         if done.any():
             self.ws.forced[0, torch.from_numpy(done)] = False
         return [int(i) for i in np.nonzero(done)[0]]
 
     # ------------------------------------------------------------------ keeping the flow centred on the ego
     def recycle(self, frame: Frame) -> list[Move]:
-        """SVs that fell out of the window around the ego and where they re-enter (dynamics.recycle)."""
+        """SVs that fell out of the window around the ego and where they re-enter (recycle.recycle)."""
         dx = np.abs(frame.x - frame.x[0])
         out = dx > self.layout.window_m + self.layout.margin_m  # World's reach: only beyond it does anyone move
         if self.road.spec.svs_may_exit:  # an SV at the off-ramp's end leaves the map
@@ -241,7 +213,7 @@ class EpisodeCore:
             return []  # nobody is beyond the reach; skips the tensor work on most steps
         ws = self.sync(frame)
         x0, lane0, v0, intent0 = ws.x.clone(), ws.lane.clone(), ws.v.clone(), ws.intent.clone()
-        _call_like_world(dynamics.recycle, ws, self.road, self.tables, layout=self.layout, level=self.level)
+        recycle(ws, self.road, self.layout, self.level)
         moved = ((ws.x != x0) | (ws.lane != lane0) | (ws.v != v0) | (ws.intent != intent0))[0].numpy()
         moved[0] = False
         x, lane, v, intent = (t[0].numpy() for t in (ws.x, ws.lane, ws.v, ws.intent))
@@ -249,18 +221,18 @@ class EpisodeCore:
 
     # ------------------------------------------------------------------ ego events
     def ego_collision(self, frame: Frame, with_vehicles: bool = True) -> bool:
-        """dynamics.ego_collision on this frame; with_vehicles=False checks only the corridor (lane ends,
+        """contacts.ego_collision on this frame; with_vehicles=False checks only the corridor (lane ends,
         boundaries outside change windows, road edges), for a backend whose simulator checks contacts."""
         ws = self.sync(frame)
         if not with_vehicles:
             ws.x = ws.x.clone()
             ws.x[0, 1:] = FAR_M
-        return bool(_call_like_world(dynamics.ego_collision, ws, self.road, self.tables)[0])
+        return bool(ego_collision(ws, self.road, self.tables, find_neighbours(ws, self.road))[0])
 
     def finish_step(self, frame: Frame, collision: bool, sv_collisions: int, ego_gone: bool = False) -> StepEvents:
         """Stage events, termination and truncation of the step just simulated (after recycling); advances t."""
         ws = self.sync(frame)
-        success, failure = _call_like_world(dynamics.stage_events, ws, self.road, self.tables)
+        success, failure = stage_events(ws, self.road)
         success, failure = bool(success[0]), bool(failure[0])
         ws.t += 1
         terminated = collision or failure or (success and self.road.spec.success_terminates)
@@ -275,19 +247,14 @@ class EpisodeCore:
 
     # ------------------------------------------------------------------ the snapshot
     def snapshot(self, frame: Frame, current_lane, adjacent_lane, d_max: float = D_MAX_M) -> Snapshot:
-        """World.neighbours run on this frame: the same slots, lane membership, lane-end obstacles."""
-        f32 = lambda a: torch.from_numpy(np.asarray(a, np.float32))[None]  # noqa: E731
+        """World.neighbours' function run on this frame: the same slots, lane membership, lane-end obstacles;
+        SVs the simulator does not show right now are out of sight."""
         x = np.where(frame.present, frame.x, FAR_M)
         x[0] = frame.x[0]
-        view = SimpleNamespace(
-            state=SimpleNamespace(x=f32(x), y=f32(frame.y), v=f32(frame.v), heading=f32(frame.heading),
-                                  lane=torch.from_numpy(frame.lane.astype(np.int64))[None]),
-            _lane_tables=self.tables,
-            road=self.road,
-        )
+        ws = replace(self.sync(frame), x=torch.from_numpy(np.asarray(x, np.float32))[None])
         cur = torch.as_tensor(current_lane).long().reshape(1)
         adj = torch.as_tensor(adjacent_lane).long().reshape(1)
-        return World.neighbours(view, cur, adj, d_max)
+        return ego_neighbours(ws, self.road, self.tables, cur, adj, d_max)
 
 
 class FrameQueries:

@@ -45,7 +45,7 @@ X_SHIFT_M = 400.0  # our x = highway-env x - X_SHIFT_M
 ROAD_LENGTH_M = 1600.0  # mainline beyond our x = 0
 POLICY_FREQUENCY_HZ = round(1 / DT_S)  # 8: one decision step is our δt = 0.125 s
 MERGE_APPROACH_M = 20.0  # the straight part of the on-ramp in [0, x1); the rest of it is the sine-shaped converge
-MIN_CHANGE_GAP_M = 2.0  # our MOBIL safety gaps (sim/dynamics.py)
+MIN_CHANGE_GAP_M = 2.0  # our MOBIL safety gaps (sim/traffic.py, used in sim/traffic_model.py)
 
 
 @dataclass(frozen=True)

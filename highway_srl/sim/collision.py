@@ -11,6 +11,9 @@ from highway_srl.constants import VEHICLE_LENGTH_M, VEHICLE_WIDTH_M
 # Two L x B boxes can only overlap if their centres are closer than twice the half-diagonal, so
 # |dx| and |dy| below this are a cheap necessary condition checked before the exact test.
 CONTACT_REACH_M = math.hypot(VEHICLE_LENGTH_M, VEHICLE_WIDTH_M) + 1e-3
+# the bumper gap below which a pair may touch within a step (two L x B boxes touch only with centres
+# closer than CONTACT_REACH_M; a car gains at most v dt < 2 m on its leader per step at SV speeds <= 13 m/s)
+CONTACT_GAP_M = CONTACT_REACH_M - VEHICLE_LENGTH_M + 2.5
 
 
 def boxes_overlap(

@@ -12,17 +12,16 @@ import torch
 
 from highway_srl.constants import (
     D_MAX_M,
-    DT_S,
-    EGO_ACCEL_MAX_MPS2,
-    EGO_BRAKE_MAX_MPS2,
     EPISODE_STEPS,
     STYLE_NAMES,
     TRAFFIC_LEVELS,
-    V_MAX_MPS,
     VEHICLE_LENGTH_M,
 )
 from highway_srl.scenarios import scenario_spec
 from highway_srl.sim import dynamics
+from highway_srl.sim.contacts import ego_collision, stage_events
+from highway_srl.sim.lane_tables import LaneTables
+from highway_srl.sim.recycle import recycle
 from highway_srl.sim.road import Road, make_road
 from highway_srl.sim.snapshot import LANE_END, NO_VEHICLE, Snapshot
 from highway_srl.sim.spawn import Layout, make_layout, spawn
@@ -103,7 +102,7 @@ class World:
             seeds = torch.as_tensor(list(seed), dtype=torch.long)
             if seeds.shape != (num_envs,):
                 raise ValueError(f"need {num_envs} seeds, got {seeds.shape[0]}")
-        self._lane_tables = dynamics.LaneTables.of(self.road, self.device)
+        self._lane_tables = LaneTables.of(self.road, self.device)
         self.state: WorldState = spawn(
             self.road, level, self.layout, seeds.to(self.device), torch.zeros_like(seeds).to(self.device), self.style
         )
@@ -131,9 +130,9 @@ class World:
         target_speed = torch.as_tensor(target_speed, device=self.device, dtype=torch.float32).reshape(self.num_envs)
         sv_collisions, neighbours = dynamics.advance(s, self.road, self._lane_tables, self.layout, target_lane,
                                                      target_speed, self.adversarial)
-        collision = dynamics.ego_collision(s, self.road, self._lane_tables, neighbours)
-        success, failure = dynamics.stage_events(s, self.road)
-        dynamics.recycle(s, self.road, self.layout, self.level)
+        collision = ego_collision(s, self.road, self._lane_tables, neighbours)
+        success, failure = stage_events(s, self.road)
+        recycle(s, self.road, self.layout, self.level)
         s.t += 1
         terminated = collision | failure | (success & self.road.spec.success_terminates)
         truncated = (s.t >= self.max_steps) & ~terminated
@@ -154,63 +153,66 @@ class World:
         return {"merged": s.merged, "exit1": s.exit1, "exit2": s.exit2}
 
     def neighbours(self, current_lane: torch.Tensor, adjacent_lane: torch.Tensor, d_max: float = D_MAX_M) -> Snapshot:
-        """SV1..SV4 of the ego: nearest front/rear vehicle in current_lane and adjacent_lane (B,) within d_max.
-
-        Lane membership is by the nearest lane centre; 'front' means the SV's centre is ahead of the ego's.
-        The end of a dropped lane ahead appears as a standing vehicle whose rear bumper is at the lane end.
-        """
-        s = self.state
-        x, lane = s.x[:, 1:], s.lane[:, 1:]
-        ego_x = s.x[:, 0]
-        dx = x - ego_x[:, None]
-        near = dx.abs() <= d_max
-        inf = torch.full_like(dx, float("inf"))
-        slots = []
-        for lane_q in (current_lane, adjacent_lane):
-            in_lane = (lane == lane_q[:, None]) & near
-            front_d, front_i = torch.where(in_lane & (dx > 0), dx, inf).min(1)
-            rear_d, rear_i = torch.where(in_lane & (dx <= 0), -dx, inf).min(1)
-            slots.append((front_d, front_i, lane_q))
-            slots.append((rear_d, rear_i, lane_q))
-        order = (0, 2, 1, 3)  # SV1 front-current, SV2 front-adjacent, SV3 rear-current, SV4 rear-adjacent
-        dist = torch.stack([slots[k][0] for k in order], 1)
-        idx = torch.stack([slots[k][1] for k in order], 1) + 1
-        valid = torch.isfinite(dist)
-        gx = lambda t: torch.gather(t, 1, idx)  # noqa: E731
-        sv_x, sv_y, sv_v, sv_h = gx(s.x), gx(s.y), gx(s.v), gx(s.heading)
-        sv_index = torch.where(valid, idx, NO_VEHICLE)
-        # lane ends ahead (merge on-ramp): a standing obstacle if nearer than the front vehicle
-        end = self._lane_tables.drop_end_m
-        for k, lane_q in ((0, current_lane), (1, adjacent_lane)):
-            lane_end = end[lane_q.clamp(min=0)]
-            wall_x = lane_end + 0.5 * VEHICLE_LENGTH_M
-            use = (lane_q >= 0) & (wall_x - ego_x <= d_max) & (~valid[:, k] | (wall_x < sv_x[:, k]))
-            use &= torch.isfinite(lane_end) & (wall_x > ego_x)
-            sv_x[:, k] = torch.where(use, wall_x, sv_x[:, k])
-            sv_y[:, k] = torch.where(use, lane_q.float() * self.road.lane_width_m, sv_y[:, k])
-            sv_v[:, k] = torch.where(use, 0.0, sv_v[:, k])
-            sv_h[:, k] = torch.where(use, 0.0, sv_h[:, k])
-            sv_index[:, k] = torch.where(use, LANE_END, sv_index[:, k])
-            valid[:, k] |= use
-        zero = torch.zeros_like(sv_x)
-        return Snapshot(
-            ego_x=ego_x,
-            ego_y=s.y[:, 0],
-            ego_vx=s.v[:, 0] * torch.cos(s.heading[:, 0]),
-            ego_vy=s.v[:, 0] * torch.sin(s.heading[:, 0]),
-            ego_heading=s.heading[:, 0],
-            ego_lane=s.lane[:, 0],
-            sv_x=torch.where(valid, sv_x, zero),
-            sv_y=torch.where(valid, sv_y, zero),
-            sv_vx=torch.where(valid, sv_v * torch.cos(sv_h), zero),
-            sv_vy=torch.where(valid, sv_v * torch.sin(sv_h), zero),
-            sv_heading=torch.where(valid, sv_h, zero),
-            sv_valid=valid,
-            sv_index=sv_index,
-            current_lane=current_lane,
-            adjacent_lane=adjacent_lane,
-        )
+        """SV1..SV4 of the ego: nearest front/rear vehicle in current_lane and adjacent_lane (B,) within d_max
+        (see ego_neighbours)."""
+        return ego_neighbours(self.state, self.road, self._lane_tables, current_lane, adjacent_lane, d_max)
 
 
-# Speed limits the ego controller uses; exported for the rules' control mapping.
-EGO_LIMITS = {"accel": EGO_ACCEL_MAX_MPS2, "brake": EGO_BRAKE_MAX_MPS2, "v_max": V_MAX_MPS, "dt": DT_S}
+def ego_neighbours(s: WorldState, road: Road, tables: LaneTables, current_lane: torch.Tensor,
+                   adjacent_lane: torch.Tensor, d_max: float = D_MAX_M) -> Snapshot:
+    """SV1..SV4 of the ego: nearest front/rear vehicle in current_lane and adjacent_lane (B,) within d_max.
+
+    Reads s.x, s.y, s.v, s.heading, s.lane (B, N). Lane membership is by the nearest lane centre; 'front'
+    means the SV's centre is ahead of the ego's. The end of a dropped lane ahead appears as a standing
+    vehicle whose rear bumper is at the lane end.
+    """
+    x, lane = s.x[:, 1:], s.lane[:, 1:]
+    ego_x = s.x[:, 0]
+    dx = x - ego_x[:, None]
+    near = dx.abs() <= d_max
+    inf = torch.full_like(dx, float("inf"))
+    slots = []
+    for lane_q in (current_lane, adjacent_lane):
+        in_lane = (lane == lane_q[:, None]) & near
+        front_d, front_i = torch.where(in_lane & (dx > 0), dx, inf).min(1)
+        rear_d, rear_i = torch.where(in_lane & (dx <= 0), -dx, inf).min(1)
+        slots.append((front_d, front_i, lane_q))
+        slots.append((rear_d, rear_i, lane_q))
+    order = (0, 2, 1, 3)  # SV1 front-current, SV2 front-adjacent, SV3 rear-current, SV4 rear-adjacent
+    dist = torch.stack([slots[k][0] for k in order], 1)
+    idx = torch.stack([slots[k][1] for k in order], 1) + 1
+    valid = torch.isfinite(dist)
+    gx = lambda t: torch.gather(t, 1, idx)  # noqa: E731
+    sv_x, sv_y, sv_v, sv_h = gx(s.x), gx(s.y), gx(s.v), gx(s.heading)
+    sv_index = torch.where(valid, idx, NO_VEHICLE)
+    # lane ends ahead (merge on-ramp): a standing obstacle if nearer than the front vehicle
+    end = tables.drop_end_m
+    for k, lane_q in ((0, current_lane), (1, adjacent_lane)):
+        lane_end = end[lane_q.clamp(min=0)]
+        wall_x = lane_end + 0.5 * VEHICLE_LENGTH_M
+        use = (lane_q >= 0) & (wall_x - ego_x <= d_max) & (~valid[:, k] | (wall_x < sv_x[:, k]))
+        use &= torch.isfinite(lane_end) & (wall_x > ego_x)
+        sv_x[:, k] = torch.where(use, wall_x, sv_x[:, k])
+        sv_y[:, k] = torch.where(use, lane_q.float() * road.lane_width_m, sv_y[:, k])
+        sv_v[:, k] = torch.where(use, 0.0, sv_v[:, k])
+        sv_h[:, k] = torch.where(use, 0.0, sv_h[:, k])
+        sv_index[:, k] = torch.where(use, LANE_END, sv_index[:, k])
+        valid[:, k] |= use
+    zero = torch.zeros_like(sv_x)
+    return Snapshot(
+        ego_x=ego_x,
+        ego_y=s.y[:, 0],
+        ego_vx=s.v[:, 0] * torch.cos(s.heading[:, 0]),
+        ego_vy=s.v[:, 0] * torch.sin(s.heading[:, 0]),
+        ego_heading=s.heading[:, 0],
+        ego_lane=s.lane[:, 0],
+        sv_x=torch.where(valid, sv_x, zero),
+        sv_y=torch.where(valid, sv_y, zero),
+        sv_vx=torch.where(valid, sv_v * torch.cos(sv_h), zero),
+        sv_vy=torch.where(valid, sv_v * torch.sin(sv_h), zero),
+        sv_heading=torch.where(valid, sv_h, zero),
+        sv_valid=valid,
+        sv_index=sv_index,
+        current_lane=current_lane,
+        adjacent_lane=adjacent_lane,
+    )

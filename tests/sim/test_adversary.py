@@ -67,3 +67,13 @@ def test_nominal_traffic_never_forces_a_lane_change():
     for _, _, forced, used, _ in _watch(world, 320):
         assert not bool(forced.any())
         assert not bool(used.any())
+
+
+def test_kinematic_safe_distance_golden_values():
+    from highway_srl.sim.adversary import kinematic_safe_distance
+
+    v_ego = torch.tensor([8.0, 0.0, 10.0])
+    v_sv = torch.tensor([6.0, 5.0, 10.0])
+    # 8 * 0.125 + 64 / 12 - 36 / 12 = 3.3333; a standing ego needs none; equal speeds: one step of reaction
+    expected = torch.tensor([1.0 + 64 / 12 - 3.0, 0.0, 1.25])
+    assert torch.allclose(kinematic_safe_distance(v_ego, v_sv), expected, atol=1e-5)

@@ -1,0 +1,75 @@
+"""Adversarial traffic (group 3 of the paper): SVs that cut into the ego's lane.
+
+Today's variant is `safe_distance_cut_ins`: a cut-in triggered by the gap to the ego falling below the
+ego's kinematic safe distance plus a per-SV offset. Another adversary is a second function next to it.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from highway_srl.constants import DT_S, EGO_BRAKE_MAX_MPS2, SV_BRAKE_MAX_MPS2, VEHICLE_LENGTH_M
+from highway_srl.sim import rng
+from highway_srl.sim.lane_tables import LaneTables
+from highway_srl.sim.state import WorldState
+from highway_srl.sim.traffic import FAR_M, MOBIL_MIN_GAP_M
+from highway_srl.sim.traffic_model import Neighbours
+
+# Group 3 reading: cut-ins only by SVs wholly ahead of the ego (False) or also alongside it (True)
+ADVERSARIAL_ALONGSIDE = False
+S_ADV = 20  # random stream of the trigger draw (spawn uses 0-7, recycling 21 and 23)
+
+
+def kinematic_safe_distance(v_follower: torch.Tensor, v_leader: torch.Tensor) -> torch.Tensor:
+    """The follower's safe distance (bumper to bumper, m, >= 0) to a leader, both (M,) m/s: one step of
+    reaction at v_follower, then the follower braking at |a_EV,D,max| while the leader brakes at
+    |a_SV,D,max|, compared by stopping distances.
+
+    It is the simple kinematic form, not the paper's rules/safe_distance (the simulator may not import the
+    rules layer, which sits above it, and the trigger's numbers are pinned to this form)."""
+    v, u = v_follower, v_leader
+    return (v * DT_S + v * v / (2 * EGO_BRAKE_MAX_MPS2) - u * u / (2 * SV_BRAKE_MAX_MPS2)).clamp(min=0)
+
+
+def safe_distance_cut_ins(s: WorldState, tables: LaneTables, nb: Neighbours) -> None:
+    """Group 3: an adjacent-lane SV ahead of the ego (its rear bumper ahead of the ego's front bumper)
+    cuts into the ego's lane once its gap falls below d_trig = (the ego's kinematic safe distance to it)
+    + offset, offset in {0, 5, 10} m, with probability ABP; each SV evaluates its trigger once per episode.
+
+    The attack is on the ego: only an SV with the ego as its immediate follower in the ego's lane and room
+    to its leader there (MOBIL_MIN_GAP_M plus the difference of their braking distances) is a candidate,
+    so a cut-in never lands on another SV. With
+    ADVERSARIAL_ALONGSIDE an SV alongside the ego (its centre at most L behind the ego's) may also cut
+    in, which is a side swipe no driving policy can avoid (see docs/paper-notes.md).
+    """
+    ego_lane, ego_x, ego_v = s.lane[:, :1], s.x[:, :1], s.v[:, :1]
+    lowest = ego_x - VEHICLE_LENGTH_M if ADVERSARIAL_ALONGSIDE else ego_x + VEHICLE_LENGTH_M
+    cand = ((s.lane - ego_lane).abs() == 1) & (s.x >= lowest) & ~s.trigger_used
+    cand &= (s.adversarial_prob > 0) & (s.target_lane == s.lane)
+    cand[:, 0] = False
+    bb, ii = cand.nonzero(as_tuple=True)
+    if bb.numel() == 0:
+        return
+    el = ego_lane[bb, 0]
+    x, v = s.x[bb, ii], s.v[bb, ii]
+    keep = tables.can_change(x, s.lane[bb, ii], el)
+    nl, nf = nb.leader[el, bb, ii], nb.follower(el, bb, ii)
+    # room to stop behind the car it cuts in front of, whatever that car does (it attacks the ego only)
+    v_l = nb.v_pad[bb, nl]
+    stop = ((v * v - v_l * v_l) / (2 * SV_BRAKE_MAX_MPS2)).clamp(min=0.0)
+    room_ahead = nb.x_pad[bb, nl] - x - VEHICLE_LENGTH_M > MOBIL_MIN_GAP_M + stop
+    room_behind = x - torch.where(nf < s.x.shape[1], nb.x_pad[bb, nf], -FAR_M) - VEHICLE_LENGTH_M > MOBIL_MIN_GAP_M
+    keep &= ((nf == 0) & room_ahead) | ((nl == 0) & room_behind)
+    gap = x - ego_x[bb, 0] - VEHICLE_LENGTH_M
+    ev = ego_v[bb, 0]
+    d_safe = kinematic_safe_distance(ev, v)
+    trig = keep & (gap < d_safe + s.trigger_offset[bb, ii])
+    bb, ii, el = bb[trig], ii[trig], el[trig]
+    if bb.numel() == 0:
+        return
+    u = rng.uniform_at(rng.key(s.seed[bb], s.episode[bb], s.t[bb], S_ADV), ii)
+    fire = u < s.adversarial_prob[bb, ii]
+    s.trigger_used[bb, ii] = True
+    s.forced[bb[fire], ii[fire]] = True
+    s.target_lane[bb[fire], ii[fire]] = el[fire]
+

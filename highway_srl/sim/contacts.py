@@ -1,0 +1,95 @@
+"""Contacts and events of a step: SV-SV contacts, the ego's collisions (boxes, lane ends, change windows,
+road edges) and the task's stage events (merge / exit flags, success, failure)."""
+
+from __future__ import annotations
+
+import torch
+
+from highway_srl.scenarios import EXIT, MERGE
+from highway_srl.sim.collision import CONTACT_REACH_M, boxes_overlap, front_x_in_band, lateral_half_extent
+from highway_srl.sim.lane_tables import LaneTables
+from highway_srl.sim.road import Road
+from highway_srl.sim.state import WorldState
+from highway_srl.sim.traffic import FAR_M, pad
+from highway_srl.sim.traffic_model import Neighbours
+
+EDGE_TOLERANCE_M = 0.5  # how far the ego's side may reach past the road's outer edge before it is a collision
+
+
+def sv_contacts(s: WorldState, near: torch.Tensor, leader: torch.Tensor) -> torch.Tensor:
+    """Distinct overlapping SV-SV pairs per env (B,) long.
+
+    Two boxes that overlap share a point, which lies in some lane band that both footprints reach, so each
+    is the other's nearest occupant of that band or has a vehicle between them in x there (which would
+    then overlap one of them too). Checking every vehicle against its leader in each lane it occupies (at
+    the start of the step, with a margin wider than a step's lateral travel) finds every contact. Only the
+    pairs that were within CONTACT_GAP_M (bumper to bumper) at the start of the step can touch by its end;
+    they go through the exact box test.
+    """
+    b, n = s.x.shape
+    near[:, :, 0] = False
+    kk, bb, ii = near.nonzero(as_tuple=True)
+    count = torch.zeros(b, dtype=torch.long, device=s.x.device)
+    jj = leader[kk, bb, ii]
+    keep = (jj > 0) & (jj < n)
+    bb, ii, jj = bb[keep], ii[keep], jj[keep]
+    if bb.numel() == 0:
+        return count
+    hit = boxes_overlap(s.x[bb, ii], s.y[bb, ii], s.heading[bb, ii], s.x[bb, jj], s.y[bb, jj], s.heading[bb, jj])
+    key = ((bb * n + ii) * n + jj)[hit]
+    if key.numel() == 0:
+        return count
+    key = torch.unique(key)
+    return count.index_add_(0, key // (n * n), torch.ones_like(key))
+
+
+def ego_collision(s: WorldState, road: Road, tables: LaneTables, nb: Neighbours) -> torch.Tensor:
+    """The ego overlaps an SV, runs into a lane end, or crosses a boundary it may not cross (B,) bool.
+
+    Any SV the ego overlaps is its leader or follower (at the start of the step) in a lane both occupy,
+    by the argument of sv_contacts, so only those 2K are tested."""
+    n = s.x.shape[1]
+    b = s.x.shape[0]
+    envs, zero = torch.arange(b, device=s.x.device), torch.zeros(b, dtype=torch.long, device=s.x.device)
+    followers = [nb.follower(torch.full_like(zero, k), envs, zero) for k in range(road.num_lanes)]
+    j = torch.cat([nb.leader[:, :, 0].T, torch.stack(followers, 1)], 1)  # (B, 2K)
+    x_pad, y_pad, h_pad = pad(s.x, FAR_M), pad(s.y, 0.0), pad(s.heading, 0.0)
+    g = lambda t: torch.gather(t, 1, j)  # noqa: E731
+    xj, yj = g(x_pad), g(y_pad)
+    near = ((xj - s.x[:, :1]).abs() < CONTACT_REACH_M) & ((yj - s.y[:, :1]).abs() < CONTACT_REACH_M) & (j < n)
+    if s.x.device.type != "cpu" or bool(near.any()):  # on CPU a branch is free and contacts are rare
+        hit = (boxes_overlap(s.x[:, :1], s.y[:, :1], s.heading[:, :1], xj, yj, g(h_pad)) & near).any(1)
+    else:
+        hit = torch.zeros_like(near[:, 0])
+    x, y, w = s.x[:, 0], s.y[:, 0], road.lane_width_m
+    e = lateral_half_extent(s.heading[:, 0])
+    lo, hi = y - e, y + e
+    for k in range(road.num_lanes - 1):
+        yb = (k + 0.5) * w
+        straddle = (lo < yb) & (hi > yb)
+        hit |= straddle & ~((tables.window_lo[k] <= x) & (x < tables.window_hi[k]))
+    hit |= (lo < -0.5 * w - EDGE_TOLERANCE_M) | (hi > (road.num_lanes - 0.5) * w + EDGE_TOLERANCE_M)
+    for k in range(road.num_lanes):
+        if road.lane_drop[k]:
+            # the part of the ego still in the dropped lane reaches the lane's end
+            front = front_x_in_band(x, y, s.heading[:, 0], (k - 0.5) * w, (k + 0.5) * w)
+            hit |= front >= road.lane_end_m[k]
+    return hit
+
+
+def stage_events(s: WorldState, road: Road) -> tuple[torch.Tensor, torch.Tensor]:
+    """Latch the merge / exit stage flags; return (success, failure) events of this step (B,)."""
+    lane, x = s.lane[:, 0], s.x[:, 0]
+    none = torch.zeros_like(lane, dtype=torch.bool)
+    task = road.spec.task
+    if task == MERGE:
+        now = (lane < road.mainline_lanes) & (x >= road.zones["stability"][0])
+        success = now & ~s.merged
+        s.merged |= now
+        return success, none
+    if task == EXIT:
+        s.exit1 |= lane == 1
+        s.exit2 |= lane == 2
+        end = road.zones["off_ramp"][1]
+        return (lane == 2) & (x >= end), (lane < 2) & (x >= road.zones["mainline_continuation"][1])
+    return none, none
