@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import torch
 
-from highway_srl.constants import V_MAX_MPS, VEHICLE_LENGTH_M
+from highway_srl.constants import V_MAX_MPS
 from highway_srl.scenarios import EXIT, MERGE, scenario_spec
 from highway_srl.rules import FASTER, IDLE, LANE_CHANGE, SLOWER, ModelStep, SafetyStep, choose_second
+from highway_srl.sim.policies import EGO_JAM_M
 from highway_srl.sim.traffic import idm_accel
 
-JAM_DISTANCE_M = 2 * VEHICLE_LENGTH_M  # IDM s0 of the ego: a cautious style's desired headway
+JAM_DISTANCE_M = EGO_JAM_M  # IDM s0 of the ego, shared with the built-in driver (sim/policies.py)
 A_FASTER_MPS2 = 0.5  # IDM acceleration above which the driver asks for Faster
 A_SLOWER_MPS2 = 1.0  # IDM deceleration above which it asks for Slower
 MOBIL_GAIN_MPS2 = 0.5  # acceleration advantage a discretionary lane change must bring (hysteresis)

@@ -1,10 +1,18 @@
-"""A simple built-in ego driver for demos and renderings: IDM in its lane, and on ramps it merges or exits
-when the target lane has room (a gap check). The full rule-based driver with the paper's safety check
-lives with the baselines.
+"""The built-in IDM ego driver for demos, renderings and the foreign backends: IDM in its lane, and on ramps it
+merges or exits when the target lane has room (a gap check). The rule-based method (agents/rule_based.py)
+uses the same IDM parameters (EGO_V0 = v_max, EGO_JAM_M) and task lanes, through the paper's safety check.
 
-It reads the world's ground truth directly: an SV counts as being in a lane when its footprint reaches
-into that lane or it is changing into it (not only when its centre is there, as in World.neighbours), so a
-car nosing in from the ramp is seen before it crosses the boundary.
+Two readings of the same driver, for what each simulator lets it see:
+- idm_ego (World): reads the world's ground truth: an SV counts as being in a lane when its footprint
+  reaches into that lane or it is changing into it (not only when its centre is there, as in
+  World.neighbours), so a car nosing in from the ramp is seen before it crosses the boundary. Room for a
+  change: MIN_GAP_M + HEADWAY_S x the follower's speed + CLOSING_TIME_S x the closing speed, ahead and behind.
+- idm_ego_backend (any Backend): reads only the protocol (ego_speed, ego_lane, road, neighbours()), which
+  places SVs by their centres only; it keeps the wider SNAPSHOT_MIN_GAP_M = 6.0 m (+ 1 s at its own speed
+  ahead, + 2 s of closing speed behind) where idm_ego asks for MIN_GAP_M = 2.0 m (+ its headway and
+  closing terms). The two gap rules are kept as they were: one rule for both would change the numbers of
+  `render --policy idm` or of the backends' driver (issue 11 left this open). Instead of the remembered target lane it infers a lane change under way
+  from the snapshot: off the lane centre and moving sideways, it keeps heading for the lane it moves to.
 """
 
 from __future__ import annotations
@@ -14,15 +22,20 @@ import torch
 from highway_srl.constants import DT_S, V_MAX_MPS, VEHICLE_LENGTH_M
 from highway_srl.scenarios import EXIT, MERGE
 from highway_srl.sim.collision import front_x_in_band, lateral_half_extent
-from highway_srl.sim.traffic_model import CENTRED_M, COMMITTED_M, WALL_JAM_CHANGING_M
-from highway_srl.sim.traffic import LANE_CHANGE_TIME_S, OCCUPANCY_MARGIN_M, idm_accel
+from highway_srl.sim.protocol import Backend
 from highway_srl.sim.road import Road
+from highway_srl.sim.traffic import LANE_CHANGE_TIME_S, OCCUPANCY_MARGIN_M, idm_accel
+from highway_srl.sim.traffic_model import CENTRED_M, COMMITTED_M, WALL_JAM_CHANGING_M
 from highway_srl.sim.world import World
 
-EGO_JAM_M = 2 * VEHICLE_LENGTH_M
+EGO_JAM_M = 2 * VEHICLE_LENGTH_M  # IDM s0 of the ego: a cautious style's desired headway
 MIN_GAP_M = 2.0  # bumper-to-bumper room a lane change needs ahead and behind, plus:
 HEADWAY_S = 0.5  # half a second at the speed of the car behind the gap (the ego ahead, the SV behind)
 CLOSING_TIME_S = 2.5  # and this many seconds of closing speed
+SNAPSHOT_MIN_GAP_M = 6.0  # idm_ego_backend's room ahead (plus 1 s at its speed) and behind (plus 2 s closing)
+SNAPSHOT_CLOSING_TIME_S = 2.0
+CENTRED_SNAPSHOT_M = 0.3  # idm_ego_backend: closer than this to a lane centre counts as in the lane
+MOVING_SIDEWAYS_MPS = 0.1
 
 
 def _sv_in_lane(world: World, lane: torch.Tensor) -> torch.Tensor:
@@ -109,4 +122,28 @@ def idm_ego(world: World) -> tuple[torch.Tensor, torch.Tensor]:
     a_tgt = idm_accel(v, v0, jam, g_tgt, v_tgt, torch.isfinite(g_tgt))
     a = torch.where(changing, torch.minimum(a, a_tgt), a)
     target_speed = (v + a * DT_S).clamp(0.0, V_MAX_MPS)
+    return target_lane, target_speed
+
+
+def idm_ego_backend(backend: Backend) -> tuple[torch.Tensor, torch.Tensor]:
+    """(target_lane (B,), target_speed (B,)) for the ego of every env of any backend."""
+    road = backend.road
+    lane = backend.ego_lane
+    v = backend.ego_speed.float()
+    want = task_lane(road, lane)
+    snap = backend.neighbours(lane, torch.where(want != lane, want, -torch.ones_like(lane)))
+    w = road.lane_width_m
+    gap_front = torch.where(snap.sv_valid[:, 0], snap.sv_x[:, 0] - snap.ego_x - VEHICLE_LENGTH_M, torch.full_like(v, 1e3))
+    ahead = idm_accel(v, torch.full_like(v, V_MAX_MPS), torch.full_like(v, EGO_JAM_M), gap_front,
+                      snap.sv_vx[:, 0], snap.sv_valid[:, 0])
+    rear_gap = snap.ego_x - snap.sv_x[:, 3] - VEHICLE_LENGTH_M
+    room_front = ~snap.sv_valid[:, 1] | (snap.sv_x[:, 1] - snap.ego_x - VEHICLE_LENGTH_M > SNAPSHOT_MIN_GAP_M + v)
+    room_rear = ~snap.sv_valid[:, 3] | (rear_gap > SNAPSHOT_MIN_GAP_M + (snap.sv_vx[:, 3] - v).clamp(min=0) * SNAPSHOT_CLOSING_TIME_S)
+    change = (want != lane) & room_front & room_rear
+    # a lane change under way: off-centre and moving sideways -> keep going to the lane it moves towards
+    offset = snap.ego_y - lane.float() * w
+    toward = torch.where(snap.ego_vy > 0, torch.ceil(snap.ego_y / w), torch.floor(snap.ego_y / w)).long()
+    changing = (offset.abs() > CENTRED_SNAPSHOT_M) & (snap.ego_vy.abs() > MOVING_SIDEWAYS_MPS)
+    target_lane = torch.where(changing, toward.clamp(0, road.num_lanes - 1), torch.where(change, want, lane))
+    target_speed = (v + ahead * DT_S).clamp(0.0, V_MAX_MPS)
     return target_lane, target_speed
