@@ -86,6 +86,12 @@ class ScenarioSpec:
     sumo_route_edges: tuple[str, ...] = ()  # edges on which the route (off-ramp or mainline) is chosen
     sumo_off_ramp_edge: str | None = None
     highway_env_kind: str = "highway"  # "highway", "merge" or "exit": which highway-env env it builds on
+    gym_name: str = ""  # the Gymnasium id's scenario part (env/: highway-srl/<gym_name>-v0 style ids)
+
+    @property
+    def reports_success(self) -> bool:
+        """Whether the evaluation reports a success rate R_s (the ramp tasks; an expressway has no goal)."""
+        return self.task != CRUISE
 
     @property
     def stage_flags(self) -> tuple[str, ...]:
@@ -107,11 +113,13 @@ _EXPRESSWAY_DEPLOYMENT = (RewardTerm(0.25, ("r_star_sv1",)), RewardTerm(0.25, ("
 SPECS: dict[str, ScenarioSpec] = {
     "two-lane": ScenarioSpec(
         "two-lane", CRUISE, 2,
+        gym_name="TwoLane",
         deployment_terms=_EXPRESSWAY_DEPLOYMENT,
         sumo_edges=(SumoEdge("main", None, None, 2, 0),),
     ),
     "multi-lane": ScenarioSpec(
         "multi-lane", CRUISE, 3,
+        gym_name="MultiLane",
         ego_start_lanes=(0, 1, 2),
         id_two_models=True,
         deployment_terms=_EXPRESSWAY_DEPLOYMENT,
@@ -119,6 +127,7 @@ SPECS: dict[str, ScenarioSpec] = {
     ),
     "merge": ScenarioSpec(
         "merge", MERGE, 2,
+        gym_name="Merge",
         zones={"on_ramp": (MERGE_X["x0"], MERGE_X["x1"]), "merging": (MERGE_X["x1"], MERGE_X["x2"]),
                "stability": (MERGE_X["x2"], MERGE_X["x3"])},
         ramp_span_m=(-INF, MERGE_X["x2"]),
@@ -145,6 +154,7 @@ SPECS: dict[str, ScenarioSpec] = {
     ),
     "exit": ScenarioSpec(
         "exit", EXIT, 2,
+        gym_name="Exit",
         zones={"exit_preparation": (EXIT_X["x0"], EXIT_X["x1"]), "diverging": (EXIT_X["x1"], EXIT_X["x2"]),
                "mainline_continuation": (EXIT_X["x2"], EXIT_X["x3_fail"]),
                "off_ramp": (EXIT_X["x2"], EXIT_X["x3_suc"])},

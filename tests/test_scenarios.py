@@ -57,3 +57,8 @@ def test_road_follows_its_spec(name):
 def test_only_exit_success_ends_the_episode_and_only_merge_success_is_a_flag():
     assert [n for n, s in SPECS.items() if s.success_terminates] == ["exit"]
     assert {n: s.success_flag for n, s in SPECS.items() if s.success_flag} == {"merge": "merged"}
+
+
+def test_success_rate_is_reported_for_the_ramp_tasks_only_and_gym_names_are_distinct():
+    assert [n for n, s in SPECS.items() if s.reports_success] == ["merge", "exit"]
+    assert len({s.gym_name for s in SPECS.values()}) == len(SPECS) and all(s.gym_name for s in SPECS.values())
