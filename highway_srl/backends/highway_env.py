@@ -23,10 +23,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
-from highway_srl.backends.episode import EpisodeCore, Frame, FrameQueries
-from highway_srl.constants import DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, EPISODE_STEPS, LANE_WIDTH_M, STYLES, V_MAX_MPS, VEHICLE_LENGTH_M
+from highway_srl.backends.base import SingleEnvBackend
+from highway_srl.backends.episode import Move
+from highway_srl.constants import DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, EPISODE_STEPS, LANE_WIDTH_M, STYLES, VEHICLE_LENGTH_M
 from highway_srl.scenarios import EXIT_X, MERGE_X, scenario_spec
 from highway_srl.sim.state import EXIT_INTENT, MERGE_INTENT, NO_INTENT
 from highway_srl.sim.traffic import (
@@ -39,7 +39,6 @@ from highway_srl.sim.traffic import (
     MOBIL_THRESHOLD_MPS2,
     SV_BRAKE_LIMIT_MPS2,
 )
-from highway_srl.sim.world import StepEvents
 
 X_SHIFT_M = 400.0  # our x = highway-env x - X_SHIFT_M
 ROAD_LENGTH_M = 1600.0  # mainline beyond our x = 0
@@ -154,7 +153,7 @@ def env_config(scenario: str, max_steps: int, frames_per_step: int) -> dict:
     return cfg
 
 
-class HighwayEnvBackend(FrameQueries):
+class HighwayEnvBackend(SingleEnvBackend):
     """One highway-env episode of a scenario behind the Backend protocol (num_envs = 1, CPU).
 
     frames_per_step: highway-env physics frames per 0.125 s decision step (simulation_frequency = 8 x this;
@@ -164,8 +163,6 @@ class HighwayEnvBackend(FrameQueries):
     clamped to the ego's acceleration limits); highway-env's own is 0.6 s, which brakes at a fifth of what
     a controller that assumes our ego dynamics asks for.
     """
-
-    num_envs = 1
 
     def __init__(
         self,
@@ -181,22 +178,18 @@ class HighwayEnvBackend(FrameQueries):
     ):
         if not isinstance(frames_per_step, int) or frames_per_step < 1:
             raise ValueError(f"frames_per_step must be a positive integer, got {frames_per_step!r}")
-        self._core = EpisodeCore(scenario, traffic, adversarial, seed, style, num_vehicles, max_steps)
+        self._init_core(scenario, traffic, adversarial, seed, style, num_vehicles, max_steps)
         import highway_env  # noqa: F401 - registers the environments; ImportError names the missing extra
 
         from highway_env.vehicle.behavior import IDMVehicle
         from highway_env.vehicle.controller import ControlledVehicle
 
         self._IDMVehicle, self._ControlledVehicle = IDMVehicle, ControlledVehicle
-        self.scenario, self.traffic, self.adversarial = scenario, traffic, bool(adversarial)
-        self.road, self.max_steps = self._core.road, max_steps
-        self.device = torch.device("cpu")
         self.frames_per_step = frames_per_step
         if not ego_speed_time_constant_s > 0:
             raise ValueError(f"ego_speed_time_constant_s must be positive, got {ego_speed_time_constant_s!r}")
         self.ego_speed_gain = 1.0 / ego_speed_time_constant_s
         self.env = _env_class(scenario)(config=env_config(scenario, max_steps, frames_per_step))
-        self._frame = Frame.empty(self._core.num_vehicles)
         self._vehicles: list = []
         self._spawn_episode()
 
@@ -291,22 +284,10 @@ class HighwayEnvBackend(FrameQueries):
         sv.route = None
         sv.enable_lane_change = bool(style.lane_change) and core.intent(j) == NO_INTENT
 
-    def reset(self, mask: torch.Tensor | None = None, *, seed: int | None = None, episode: int | None = None) -> None:
-        """Start the next episode of this seed (or episode `episode` of `seed`) if mask is None or True."""
-        if mask is not None and not bool(torch.as_tensor(mask).reshape(-1)[0]):
-            return
-        self._core.new_episode(self._core.episode + 1 if episode is None else episode, seed)
-        self._spawn_episode()
-
-    # ------------------------------------------------------------------ stepping
-    def step(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
-        """Advance by δt with the ego tracking (target lane (1,) long, target speed (1,) m/s)."""
-        core, f, env = self._core, self._frame, self.env.unwrapped
-        target = int(torch.as_tensor(target_lane).reshape(-1)[0])
-        speed = float(torch.as_tensor(target_speed, dtype=torch.float32).reshape(-1)[0])
+    # ------------------------------------------------------------------ stepping (SingleEnvBackend's hooks)
+    def _simulate(self) -> tuple[bool, int]:
+        core, env = self._core, self.env.unwrapped
         ego = self._vehicles[0]
-        self._command_ego(core.accept_ego_target(f, target), min(max(speed, 0.0), V_MAX_MPS))
-        self._command_cut_ins()
         self._mandatory_changes()
         crashed_before = [v.crashed for v in self._vehicles]
         dt = 1.0 / env.config["simulation_frequency"]
@@ -323,19 +304,20 @@ class HighwayEnvBackend(FrameQueries):
         new_crash = [v.crashed and not before for v, before in zip(self._vehicles, crashed_before)]
         collision = bool(ego.crashed) or core.ego_collision(f, with_vehicles=False)
         sv_collisions = max(sum(new_crash[1:]) - (1 if new_crash[0] else 0), 0)
-        for j in core.release_forced(f):
-            sv = self._vehicles[j]
-            sv.enable_lane_change = bool(core.lane_change[j]) and core.intent(j) == NO_INTENT
-        moves = core.recycle(f)
-        for mv in moves:
-            sv = self._vehicles[mv.index]
-            if not self._place(sv, mv.x, mv.lane, mv.v):
-                self._park(sv)
-            sv.enable_lane_change = bool(core.lane_change[mv.index]) and mv.intent == NO_INTENT
-        events = core.finish_step(f, collision, sv_collisions)
-        if moves:
-            self._read_frame()
-        return events
+        return collision, sv_collisions
+
+    def _release(self, j: int) -> None:
+        core = self._core
+        self._vehicles[j].enable_lane_change = bool(core.lane_change[j]) and core.intent(j) == NO_INTENT
+
+    def _move(self, mv: Move) -> None:
+        sv = self._vehicles[mv.index]
+        if not self._place(sv, mv.x, mv.lane, mv.v):
+            self._park(sv)
+        sv.enable_lane_change = bool(self._core.lane_change[mv.index]) and mv.intent == NO_INTENT
+
+    def _after_moves(self) -> None:
+        self._read_frame()
 
     def _command_ego(self, target: int, speed: float) -> None:
         ego = self._vehicles[0]
@@ -352,16 +334,12 @@ class HighwayEnvBackend(FrameQueries):
                 return info.index
         return None
 
-    def _command_cut_ins(self) -> None:
-        core, f = self._core, self._frame
-        if not core.adversarial:
-            return
-        for j in core.adversarial_cut_ins(f):
-            sv = self._vehicles[j]
-            want = self._index_on_road(sv.lane_index[:2], int(core.forced_lane[j]))
-            if want is not None:
-                sv.target_lane_index = want
-                sv.enable_lane_change = False  # no MOBIL second thoughts during the cut-in
+    def _cut_in(self, j: int, lane: int) -> None:
+        sv = self._vehicles[j]
+        want = self._index_on_road(sv.lane_index[:2], lane)
+        if want is not None:
+            sv.target_lane_index = want
+            sv.enable_lane_change = False  # no MOBIL second thoughts during the cut-in
 
     def _mandatory_changes(self) -> None:
         """Merging and exiting SVs move towards the ramp lane when the gap is safe (our MOBIL's mandatory

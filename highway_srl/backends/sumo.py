@@ -31,13 +31,13 @@ from highway_srl.constants import (
     VEHICLE_LENGTH_M,
     VEHICLE_WIDTH_M,
 )
-from highway_srl.backends.episode import FAR_M, EpisodeCore, Frame, FrameQueries
+from highway_srl.backends.base import SingleEnvBackend
+from highway_srl.backends.episode import FAR_M, Frame, Move
 from highway_srl.backends.sumo_networks import EdgeSpec, edges_of, links_of, network_path, sumo_binary
 from highway_srl.sim.dynamics import HEADING_MAX_RAD
 from highway_srl.sim.snapshot import Snapshot
 from highway_srl.sim.state import EXIT_INTENT
 from highway_srl.sim.traffic import IDM_ACCEL_MPS2, IDM_COMFORT_BRAKE_MPS2, IDM_DELTA, IDM_TIME_HEADWAY_S, SV_BRAKE_LIMIT_MPS2
-from highway_srl.sim.world import StepEvents
 
 LANE_CHANGE_DURATION_S = 2.5  # our lateral controller takes about 2.5 s for a lane change at 8 m/s
 EGO_SPEED_MODE = 6  # respect max acceleration and deceleration only: no safe speed, no right of way
@@ -116,14 +116,12 @@ def routes_of(scenario: str) -> dict[str, list[str]]:
     return routes
 
 
-class SumoBackend(FrameQueries):
+class SumoBackend(SingleEnvBackend):
     """One SUMO simulation of a scenario behind the Backend protocol (num_envs = 1, CPU).
 
     api: "libsumo" (in-process, fast; one simulation per process: starting a second SumoBackend closes the
     first) or "traci" (a sumo process per backend over a socket; several per process, about 30x slower).
     """
-
-    num_envs = 1
 
     def __init__(
         self,
@@ -138,10 +136,7 @@ class SumoBackend(FrameQueries):
     ):
         if api not in ("libsumo", "traci"):
             raise ValueError(f"unknown SUMO api {api!r}; choose libsumo or traci")
-        self._core = EpisodeCore(scenario, traffic, adversarial, seed, style, num_vehicles, max_steps)
-        self.scenario, self.traffic, self.adversarial = scenario, traffic, bool(adversarial)
-        self.road, self.max_steps = self._core.road, max_steps
-        self.device = torch.device("cpu")
+        self._init_core(scenario, traffic, adversarial, seed, style, num_vehicles, max_steps)
         self._edges: dict[str, EdgeSpec] = {e.id: e for e in edges_of(scenario)}
         self._mainline_end = next(e.id for e in edges_of(scenario) if e.first_lane == 0 and e.x_to == max(
             f.x_to for f in edges_of(scenario) if f.first_lane == 0))
@@ -155,7 +150,6 @@ class SumoBackend(FrameQueries):
         n = self._core.num_vehicles
         self._ids: list[str | None] = [None] * n
         self._generation = 0
-        self._frame = Frame.empty(n)
         self._ego_gone = False
         self._ego_dest = ""
         self._spawn_episode()
@@ -271,42 +265,27 @@ class SumoBackend(FrameQueries):
         self._ego_gone = False
         self._read_frame()
 
-    def reset(self, mask: torch.Tensor | None = None, *, seed: int | None = None, episode: int | None = None) -> None:
-        """Start the next episode of this seed (or episode `episode` of `seed`) if mask is None or True."""
-        self._check_open()
-        if mask is not None and not bool(torch.as_tensor(mask).reshape(-1)[0]):
-            return
-        self._core.new_episode(self._core.episode + 1 if episode is None else episode, seed)
-        self._spawn_episode()
-
-    # ------------------------------------------------------------------ stepping
-    def step(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
-        """Advance by δt with the ego tracking (target lane (1,) long, target speed (1,) m/s)."""
-        self._check_open()
-        api, core, f = self._api, self._core, self._frame
-        if self._ego_gone:
-            return core.finish_step(f, False, 0, ego_gone=True)
-        target = int(torch.as_tensor(target_lane).reshape(-1)[0])
-        speed = float(torch.as_tensor(target_speed, dtype=torch.float32).reshape(-1)[0])
-        self._command_ego(core.accept_ego_target(f, target), min(max(speed, 0.0), V_MAX_MPS))
-        self._command_cut_ins()
-        api.simulationStep()
+    # ------------------------------------------------------------------ stepping (SingleEnvBackend's hooks)
+    def _simulate(self) -> tuple[bool, int]:
+        self._api.simulationStep()
         self._read_frame()
         collision, sv_collisions = self._collisions()
-        f = self._frame
         if not self._ego_gone:
-            collision |= core.ego_collision(f)
-        for j in core.release_forced(f):
-            if self._ids[j] is not None:
-                api.vehicle.setLaneChangeMode(self._ids[j], SV_LANE_CHANGE_MODE)
-        for mv in core.recycle(f):
-            self._remove(mv.index)
-            self._add(mv.index, mv.x, mv.lane, mv.v, mv.intent)
-            f.x[mv.index], f.y[mv.index] = mv.x, mv.lane * self.road.lane_width_m
-            f.v[mv.index], f.heading[mv.index], f.lane[mv.index] = mv.v, 0.0, mv.lane
-            f.target_lane[mv.index] = mv.lane
-            f.present[mv.index] = False
-        return core.finish_step(f, collision, sv_collisions, ego_gone=self._ego_gone)
+            collision |= self._core.ego_collision(self._frame)
+        return collision, sv_collisions
+
+    def _release(self, j: int) -> None:
+        if self._ids[j] is not None:
+            self._api.vehicle.setLaneChangeMode(self._ids[j], SV_LANE_CHANGE_MODE)
+
+    def _move(self, mv: Move) -> None:
+        f, j = self._frame, mv.index
+        self._remove(j)
+        self._add(j, mv.x, mv.lane, mv.v, mv.intent)
+        f.x[j], f.y[j] = mv.x, mv.lane * self.road.lane_width_m
+        f.v[j], f.heading[j], f.lane[j] = mv.v, 0.0, mv.lane
+        f.target_lane[j] = mv.lane
+        f.present[j] = False
 
     def _command_ego(self, target: int, speed: float) -> None:
         api, f = self._api, self._frame
@@ -324,20 +303,15 @@ class SumoBackend(FrameQueries):
                 api.vehicle.changeTarget(EGO_ID, dest)
                 self._ego_dest = dest
 
-    def _command_cut_ins(self) -> None:
-        core, f, api = self._core, self._frame, self._api
-        if not core.adversarial:
+    def _cut_in(self, j: int, to: int) -> None:
+        api, vid = self._api, self._ids[j]
+        if vid is None:
             return
-        for j in core.adversarial_cut_ins(f):
-            vid = self._ids[j]
-            if vid is None:
-                continue
-            edge = self._edges.get(api.vehicle.getRoadID(vid))
-            to = int(core.forced_lane[j])
-            if edge is None or not edge.first_lane <= to < edge.first_lane + edge.lanes:
-                continue
-            api.vehicle.setLaneChangeMode(vid, FORCED_LANE_CHANGE_MODE)
-            api.vehicle.changeLane(vid, self._sumo_lane(edge, to), 2 * LANE_CHANGE_DURATION_S)
+        edge = self._edges.get(api.vehicle.getRoadID(vid))
+        if edge is None or not edge.first_lane <= to < edge.first_lane + edge.lanes:
+            return
+        api.vehicle.setLaneChangeMode(vid, FORCED_LANE_CHANGE_MODE)
+        api.vehicle.changeLane(vid, self._sumo_lane(edge, to), 2 * LANE_CHANGE_DURATION_S)
 
     def _read_frame(self) -> None:
         api, f = self._api, self._frame
