@@ -2,18 +2,20 @@
 
     import highway_srl
     env = highway_srl.make("merge", traffic="C")          # Gymnasium Env with the paper's 37 inputs
+    envs = highway_srl.make("merge", num_envs=64)         # batched Gymnasium VectorEnv
     world = highway_srl.World("two-lane", num_envs=4096)   # the raw batched simulator
 """
 
 __version__ = "0.1.0"
+ENV_IDS = {"two-lane": "TwoLane", "multi-lane": "MultiLane", "merge": "Merge", "exit": "Exit"}  # highway-srl/<name>-v0
 
 
 def make(scenario: str = "two-lane", traffic: str = "C", adversarial: bool = False, num_envs: int = 1,
-         device: str = "cpu", seed: int | None = None):
-    """A Gymnasium Env (num_envs = 1) or VectorEnv (num_envs > 1); see highway_srl.env."""
+         device: str = "cpu", seed: int | None = None, vector: bool | None = None, render_mode: str | None = None):
+    """A Gymnasium Env (num_envs = 1) or VectorEnv (num_envs > 1, or vector=True at any N); see highway_srl.env."""
     from highway_srl.env import make as _make
 
-    return _make(scenario, traffic, adversarial, num_envs, device, seed)
+    return _make(scenario, traffic, adversarial, num_envs, device, seed, vector, render_mode)
 
 
 def __getattr__(name):
@@ -25,13 +27,17 @@ def __getattr__(name):
 
 
 def _register() -> None:
+    """The four ids; gymnasium.make_vec builds the batched HighwayVectorEnv through vector_entry_point."""
     import gymnasium
 
-    ids = {"two-lane": "TwoLane", "multi-lane": "MultiLane", "merge": "Merge", "exit": "Exit"}
-    for scenario, name in ids.items():
+    from highway_srl.constants import EPISODE_STEPS
+
+    for scenario, name in ENV_IDS.items():
         env_id = f"highway-srl/{name}-v0"
         if env_id not in gymnasium.registry:
-            gymnasium.register(env_id, entry_point="highway_srl.env:HighwayEnv", kwargs={"scenario": scenario})
+            gymnasium.register(env_id, entry_point="highway_srl.env:HighwayEnv",
+                               vector_entry_point="highway_srl.env:HighwayVectorEnv",
+                               max_episode_steps=EPISODE_STEPS, kwargs={"scenario": scenario})
 
 
 _register()

@@ -1,0 +1,106 @@
+"""Stable-Baselines3 on the batched simulator: a VecEnv over HighwayVectorEnv (install the [sb3] extra).
+
+    from sb3_contrib import MaskablePPO
+    from highway_srl.sb3 import make_vec_env
+    env = make_vec_env("two-lane", traffic="C", num_envs=16, seed=0)
+    model = MaskablePPO("MlpPolicy", env).learn(20_000)     # sees Table 1's safe set via action_masks()
+
+SB3's conventions: step returns (obs, reward, done, infos) with done = terminated or truncated and one info
+dict per env; a finished env's dict is the finished episode's last info plus "terminal_observation" and
+"TimeLimit.truncated" (DQN bootstraps through a time limit, not through a collision); the observation is
+already the new episode's. All B envs share one simulator, so attributes and methods are the batched env's:
+get_attr answers the same value for every env, and env_method splits a (B, ...) result into per-env rows.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+try:
+    from stable_baselines3.common.vec_env import VecEnv
+except ModuleNotFoundError:
+    raise ModuleNotFoundError("highway_srl.sb3 needs Stable-Baselines3: pip install 'highway-srl[sb3]'") from None
+
+from highway_srl.constants import EPISODE_STEPS
+from highway_srl.env import HighwayVectorEnv
+
+
+class SB3VecEnv(VecEnv):
+    """SB3's VecEnv view of a HighwayVectorEnv (B envs; Box(37,) observations, Discrete(4) actions)."""
+
+    def __init__(self, env: HighwayVectorEnv):
+        self.env = env
+        self._actions: np.ndarray | None = None
+        super().__init__(env.num_envs, env.single_observation_space, env.single_action_space)
+
+    # ------------------------------------------------------------------ stepping
+    def reset(self) -> np.ndarray:
+        """Seeds from seed() are used once (env b gets seed + b); without them a fresh random seed."""
+        seeds = None if any(s is None for s in self._seeds) else list(self._seeds)
+        obs, info = self.env.reset(seed=seeds)
+        self.reset_infos = _per_env(info, self.num_envs)
+        self._reset_seeds()
+        self._reset_options()
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = actions
+
+    def step_wait(self):
+        obs, reward, terminated, truncated, info = self.env.step(self._actions)
+        done = terminated | truncated
+        infos = _per_env({k: v for k, v in info.items() if not k.startswith(("final_", "_"))}, self.num_envs)
+        for b in np.flatnonzero(done):  # a Python loop over the finished envs only: SB3 wants one dict each
+            infos[b] = {k: v[b] for k, v in info["final_info"].items() if not k.startswith("_")}
+            infos[b]["terminal_observation"] = info["final_obs"][b]
+            infos[b]["TimeLimit.truncated"] = bool(truncated[b] and not terminated[b])
+        return obs, reward.astype(np.float32), done, infos
+
+    def action_masks(self) -> np.ndarray:
+        """(B, 4) bool, Table 1's safe set of each env's current state."""
+        return self.env.action_masks()
+
+    def close(self) -> None:
+        self.env.close()
+
+    def get_images(self) -> list[np.ndarray | None]:
+        """Env 0's frame only (see HighwayVectorEnv.render); SB3's render() and VecVideoRecorder use it."""
+        return [self.env.render()]
+
+    # ------------------------------------------------------------------ attributes shared by the batch
+    def get_attr(self, attr_name: str, indices=None) -> list[Any]:
+        value = getattr(self.env, attr_name)
+        return [value for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices=None) -> None:
+        if indices is not None and sorted(self._get_indices(indices)) != list(range(self.num_envs)):
+            raise ValueError(f"the {self.num_envs} envs share one simulator: set {attr_name!r} for all of them")
+        setattr(self.env, attr_name, value)
+
+    def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list[Any]:
+        """Calls the batched env's method once; a (B, ...) array result is split into per-env rows, any
+        other result is repeated for each env asked for."""
+        result = getattr(self.env, method_name)(*method_args, **method_kwargs)
+        rows = isinstance(result, np.ndarray) and result.ndim >= 1 and result.shape[0] == self.num_envs
+        return [result[b] if rows else result for b in self._get_indices(indices)]
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
+
+
+def _per_env(info: dict[str, np.ndarray], num_envs: int) -> list[dict[str, Any]]:
+    """Gymnasium's dict of (B, ...) arrays as SB3's list of B dicts."""
+    keys = list(info)
+    return [dict(zip(keys, row)) for row in zip(*(info[k] for k in keys))] if keys else [{} for _ in range(num_envs)]
+
+
+def make_vec_env(scenario: str = "two-lane", traffic: str = "C", adversarial: bool = False, num_envs: int = 8,
+                 device: str = "cpu", seed: int | None = None, render_mode: str | None = None,
+                 max_episode_steps: int = EPISODE_STEPS) -> SB3VecEnv:
+    """An SB3 VecEnv of num_envs batched envs of one scenario; with seed, its first reset uses seed + b."""
+    venv = SB3VecEnv(HighwayVectorEnv(scenario, traffic, adversarial, num_envs, device, render_mode, max_episode_steps))
+    if seed is not None:
+        venv.seed(seed)
+    return venv
