@@ -14,9 +14,9 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install -q -e ".[test]"
 	touch $(STAMP)
 
-# the tests also exercise the SUMO and highway-env backends (optional extras for users)
+# the tests also exercise the SUMO and highway-env backends and the SB3 adapter (optional extras for users)
 $(VENV)/.extras: $(STAMP)
-	$(BIN)/python -m pip install -q -e ".[test,sumo,highway-env,play,ray]"
+	$(BIN)/python -m pip install -q -e ".[test,sumo,highway-env,play,ray,sb3]"
 	touch $(VENV)/.extras
 
 setup: $(STAMP)

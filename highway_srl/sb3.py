@@ -51,11 +51,13 @@ class SB3VecEnv(VecEnv):
     def step_wait(self):
         obs, reward, terminated, truncated, info = self.env.step(self._actions)
         done = terminated | truncated
-        infos = _per_env({k: v for k, v in info.items() if not k.startswith(("final_", "_"))}, self.num_envs)
-        for b in np.flatnonzero(done):  # a Python loop over the finished envs only: SB3 wants one dict each
+        time_limit = truncated & ~terminated
+        running = {k: v for k, v in info.items() if not k.startswith(("final_", "_"))}
+        infos = _per_env({**running, "TimeLimit.truncated": time_limit}, self.num_envs)
+        for b in np.flatnonzero(done):  # a Python loop over the finished envs only
             infos[b] = {k: v[b] for k, v in info["final_info"].items() if not k.startswith("_")}
             infos[b]["terminal_observation"] = info["final_obs"][b]
-            infos[b]["TimeLimit.truncated"] = bool(truncated[b] and not terminated[b])
+            infos[b]["TimeLimit.truncated"] = bool(time_limit[b])
         return obs, reward.astype(np.float32), done, infos
 
     def action_masks(self) -> np.ndarray:

@@ -82,21 +82,22 @@ BUDGETS: dict[str, Budget] = {
     "smoke": Budget(
         "smoke", steps=1_344, envs=4, seeds=(0,), learning_starts=800, batch_size=32, updates_per_step=1,
         eval_episodes=4, group1_levels=("A", "C", "F"), checkpoint_every=10**9,
-        expected_cost="a few minutes on 2 CPU cores (336 vector steps per run: one episode per env, 1 seed, "
-                      "4 episodes per level, Group 1 at levels A, C, F); checks that every artefact is produced, "
+        expected_cost="about 10-11 minutes on a 2-core CPU for its 43 jobs (336 vector steps per run: one "
+                      "episode per env, 1 seed, 4 episodes per level, Group 1 at levels A, C, F); checks that "
+                      "every artefact is produced, "
                       "says nothing about the paper"),
     "quick": Budget(
         "quick", steps=40_000, envs=8, seeds=(0, 1), learning_starts=1_000, batch_size=64, updates_per_step=1,
         eval_episodes=20, group1_levels=tuple(TRAFFIC_LEVELS), checkpoint_every=8_000,
-        expected_cost="under an hour on 2 CPU cores with all 8 methods (4e4 steps x 2 seeds per run, 20 "
-                      "episodes per seed and level; about 65 CPU-minutes in all, the costliest run 100 CPU-s); "
+        expected_cost="about 71 minutes on a 2-core CPU with all 8 methods (docs/results.md; 4e4 steps x 2 "
+                      "seeds per run, 20 episodes per seed and level); "
                       "enough for MoE-RM-SRL's return to rise, not for the paper's numbers"),
     "paper": Budget(
         "paper", steps=500_000, envs=16, seeds=tuple(range(10)), learning_starts=1_000, batch_size=256,
         updates_per_step=4, eval_episodes=100, group1_levels=tuple(TRAFFIC_LEVELS), checkpoint_every=50_000,
         expected_cost="5e5 steps x 10 seeds per run (the seeds batched in one process), 100 episodes per seed "
                       "and level, 43 runs. CPU: about 3-6 h per run on 2 cores (measured rate of the first "
-                      "steps), so 5-10 days for the study on 2 cores, less with more cores (--jobs) or a Ray "
+                      "steps), so 5-10 days for the study on a 2-core CPU, less with more cores (--jobs) or a Ray "
                       "cluster. GPU (--device cuda): roughly 10 min per run on one H100 (estimated from the "
                       "measured update cost, not timed end to end), about 7 h for the 43 runs one after "
                       "another, less with --jobs 4 sharing the GPU or several GPUs through Ray"),

@@ -1,4 +1,4 @@
-"""Gymnasium interfaces: highway_srl.make, registered ids, vector env with same-step autoreset."""
+"""Gymnasium interfaces: highway_srl.make, registered ids, make_vec, vector env with same-step autoreset."""
 
 import gymnasium
 import numpy as np
@@ -6,7 +6,8 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import highway_srl
-from highway_srl.constants import OBS_DIM
+from highway_srl.constants import EPISODE_STEPS, OBS_DIM
+from highway_srl.env import HighwayVectorEnv
 
 
 @pytest.mark.parametrize("scenario", ["two-lane", "multi-lane", "merge", "exit"])
@@ -51,3 +52,79 @@ def test_out_of_range_action_is_a_clear_error():
     env.reset(seed=0)
     with pytest.raises(ValueError, match="not in"):
         env.step(7)
+
+
+def test_make_vec_returns_the_batched_env_with_the_episode_limit():
+    envs = gymnasium.make_vec("highway-srl/TwoLane-v0", num_envs=3, traffic="B")
+    assert isinstance(envs, HighwayVectorEnv) and envs.num_envs == 3
+    assert envs.spec.max_episode_steps == EPISODE_STEPS
+    assert gymnasium.spec("highway-srl/Merge-v0").max_episode_steps == EPISODE_STEPS
+    obs, _ = envs.reset(seed=0)
+    assert obs.shape == (3, OBS_DIM)
+
+
+def test_vector_true_gives_a_vector_env_at_one_env_and_make_keeps_the_single_env():
+    envs = highway_srl.make("merge", vector=True)
+    assert isinstance(envs, gymnasium.vector.VectorEnv) and envs.num_envs == 1
+    obs, info = envs.reset(seed=0)
+    assert obs.shape == (1, OBS_DIM) and info["action_mask"].shape == (1, 4)
+    env = highway_srl.make("merge")
+    assert isinstance(env, gymnasium.Env) and env.spec.max_episode_steps == EPISODE_STEPS
+    with pytest.raises(ValueError, match="vector=True"):
+        highway_srl.make("merge", num_envs=4, vector=False)
+
+
+def test_action_masks_are_the_info_masks_of_single_and_vector_envs():
+    env = highway_srl.make("multi-lane")
+    _, info = env.reset(seed=5)
+    assert env.action_masks().dtype == bool and np.array_equal(env.action_masks(), info["action_mask"])
+    envs = highway_srl.make("multi-lane", num_envs=4)
+    _, info = envs.reset(seed=5)
+    _, _, _, _, info = envs.step(np.zeros(4, dtype=np.int64))
+    assert envs.action_masks().shape == (4, 4) and np.array_equal(envs.action_masks(), info["action_mask"])
+
+
+def test_finished_envs_final_obs_and_final_info_are_the_finished_episodes_and_outlive_the_reset():
+    """Env A truncates at step 5 and restarts; env B (limit 50) is the same world continuing, so at step 5
+    B's observation and info are A's finished episode. What A returned must still hold after A steps on."""
+    a = HighwayVectorEnv("two-lane", "C", num_envs=3, max_episode_steps=5)
+    b = HighwayVectorEnv("two-lane", "C", num_envs=3, max_episode_steps=50)
+    a.reset(seed=7)
+    b.reset(seed=7)
+    idle = np.ones(3, dtype=np.int64)
+    for _ in range(5):
+        obs_a, _, term_a, trunc_a, info_a = a.step(idle)
+        obs_b, _, _, _, info_b = b.step(idle)
+    assert (trunc_a & ~term_a).all() and info_a["_final_obs"].all() and info_a["_final_info"].all()
+    expected = {k: v.copy() for k, v in info_b.items()}
+    held = {k: v.copy() for k, v in info_a["final_info"].items()}
+    for key in ("action_mask", "rm_state", "ego_speed", "collision", "success"):
+        assert np.array_equal(info_a["final_info"][key], expected[key]), key
+        assert info_a["final_info"][f"_{key}"].all()
+    assert np.array_equal(info_a["final_obs"], obs_b)
+    # the top-level info describes the new episodes: their masks, and nothing has happened in them yet
+    assert np.array_equal(info_a["action_mask"], a.action_masks())
+    assert not info_a["collision"].any() and not info_a["success"].any()
+    assert not np.array_equal(obs_a, obs_b)
+    a.step(idle)
+    for key, value in held.items():
+        assert np.array_equal(info_a["final_info"][key], value), key
+
+
+def test_info_values_are_copies_that_later_steps_cannot_change():
+    envs = highway_srl.make("two-lane", num_envs=2)
+    obs, info = envs.reset(seed=1)
+    held_obs, held_info = obs.copy(), {k: v.copy() for k, v in info.items()}
+    for _ in range(3):
+        envs.step(np.zeros(2, dtype=np.int64))  # Faster: the speed changes
+    assert np.array_equal(obs, held_obs)
+    for key, value in held_info.items():
+        assert np.array_equal(info[key], value), key
+
+
+def test_vector_env_renders_env_zero():
+    envs = highway_srl.make("exit", num_envs=3, render_mode="rgb_array")
+    envs.reset(seed=0)
+    frame = envs.render()
+    assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
+    assert highway_srl.make("exit", num_envs=3).render() is None
