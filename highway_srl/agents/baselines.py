@@ -23,7 +23,7 @@ import torch
 from highway_srl.agents.dqn import DQNLearner
 from highway_srl.agents.ensemble import ensemble_forward
 from highway_srl.agents.methods import METHODS, Decision, Method, MoERMSRL
-from highway_srl.agents.moe import grouped_q
+from highway_srl.agents.moe import grouped_q, seed_of_env
 from highway_srl.agents.rule_based import rule_based_action, rule_based_decision
 from highway_srl.constants import EPISODE_STEPS
 from highway_srl.rules import OBS_NAMES, SafetyLayer, choose_second, scenario_reward
@@ -48,11 +48,6 @@ def speed_reward(scenario: str, next_obs: torch.Tensor, events, flags: dict) -> 
     speed = next_obs[:, EGO_VX_COLUMN].clamp(0.0, 1.0)
     return scenario_reward(scenario, speed, events.collision, r_merge=flags["merged"], r_exit1=flags["exit1"],
                            r_exit2=flags["exit2"])
-
-
-def env_seed(batch: int, seeds: int, device) -> torch.Tensor:
-    """(B,) long: the seed (agent) each env belongs to; envs are split into `seeds` equal blocks."""
-    return torch.arange(batch, device=device) // (batch // seeds)
 
 
 def random_allowed(allowed: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
@@ -126,7 +121,7 @@ class SingleDQN(_Options, Method):
         return grouped_q(learner, model.obs, self.seeds, self.members_per_seed)[:, 0]
 
     def member(self, batch: int, device) -> torch.Tensor:
-        return env_seed(batch, self.seeds, device) * self.members_per_seed
+        return seed_of_env(batch, self.seeds, device) * self.members_per_seed
 
     def decide(self, learner, step, explore, generator) -> Decision:
         use_second = None
@@ -216,7 +211,7 @@ class LMRL(SingleDQN):
 
     def scores(self, learner, model) -> torch.Tensor:
         q = grouped_q(learner, model.obs, self.seeds, self.members_per_seed)  # (B, 2, 4)
-        lam = self.lam.to(q.device)[env_seed(q.shape[0], self.seeds, q.device)]
+        lam = self.lam.to(q.device)[seed_of_env(q.shape[0], self.seeds, q.device)]
         return q[:, 0] - lam[:, None] * q[:, 1]
 
     def reward(self, scenario, nxt, events, flags):
@@ -254,7 +249,7 @@ class LMRL(SingleDQN):
         self.episode_cost = self.episode_cost.to(cost.device) + cost
         if not bool(done.any()):
             return
-        seed = env_seed(cost.shape[0], self.seeds, cost.device)
+        seed = seed_of_env(cost.shape[0], self.seeds, cost.device)
         ended = done.to(cost.dtype)
         total = torch.zeros(self.seeds, device=cost.device).index_add_(0, seed, self.episode_cost * ended)
         count = torch.zeros(self.seeds, device=cost.device).index_add_(0, seed, ended)

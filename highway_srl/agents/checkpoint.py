@@ -120,3 +120,22 @@ def load_checkpoint(
         first_line = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise CheckpointError(f"{model_path} is truncated or corrupt: {first_line}") from None
     return tensors, meta
+
+
+# One key scheme for a trained policy's tensors, in the final model/ and in resume/ alike:
+# "learner.<name>" (the networks: weights, targets, Adam moments) and "method.<name>" (a method's own
+# state, e.g. LM-RL's λ). Only the two functions below build or read these keys.
+LEARNER_PREFIX, METHOD_PREFIX = "learner.", "method."
+
+
+def policy_tensors(learner, method) -> dict[str, torch.Tensor]:
+    """The tensors of a policy (a DQNLearner and a Method) under the checkpoint key scheme."""
+    state = {LEARNER_PREFIX + k: v for k, v in learner.state_dict().items()}
+    state.update({METHOD_PREFIX + k: v for k, v in method.state_dict().items()})
+    return state
+
+
+def split_policy_tensors(tensors: dict[str, torch.Tensor]) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
+    """(learner state, method state) with their prefixes removed; keys of neither part are ignored."""
+    part = lambda prefix: {k[len(prefix):]: v for k, v in tensors.items() if k.startswith(prefix)}  # noqa: E731
+    return part(LEARNER_PREFIX), part(METHOD_PREFIX)

@@ -13,7 +13,7 @@ import torch
 
 from highway_srl.agents.dqn import DQNLearner
 from highway_srl.agents.gating import EXPERT_NAMES, expert_action_mask
-from highway_srl.agents.moe import MoEPolicy
+from highway_srl.agents.moe import MoEPolicy, seed_of_env
 from highway_srl.agents.replay import ExpertReplay
 from highway_srl.rules import ACTIONS, SafetyLayer, choose_second, scenario_reward
 
@@ -111,9 +111,9 @@ class MoERMSRL(Method):
         per = self.policy.members_per_seed
         holds = expert_action_mask(obs.device)[:, d.action].T  # (B, 11)
         b = obs.shape[0]
-        seed_of_env = torch.arange(b, device=obs.device) // (b // self.seeds)
+        seed = seed_of_env(b, self.seeds, obs.device)
         mask = torch.zeros(b, self.num_members, dtype=torch.bool, device=obs.device)
-        cols = seed_of_env[:, None] * per + torch.arange(per, device=obs.device)
+        cols = seed[:, None] * per + torch.arange(per, device=obs.device)
         mask.scatter_(1, cols, holds)
         replay.add_shared(mask, obs, d.action, reward, next_obs, done, cost)
 

@@ -12,6 +12,11 @@ from highway_srl.agents.dqn import DQNLearner
 from highway_srl.agents.gating import NUM_EXPERTS, expert_action_mask, polite_gate, random_expert_actions
 
 
+def seed_of_env(batch: int, seeds: int, device=None) -> torch.Tensor:
+    """(B,) long: the seed (agent) each env belongs to; the B envs are split into `seeds` equal blocks."""
+    return torch.arange(batch, device=device) // (batch // seeds)
+
+
 def grouped_q(learner: DQNLearner, obs: torch.Tensor, seeds: int, members_per_seed: int) -> torch.Tensor:
     """Q-values of each env's own seed's members: obs (B, D) -> (B, members_per_seed, out), masked to -inf
     outside each member's action set. B must be a multiple of seeds."""
@@ -55,6 +60,6 @@ class MoEPolicy:
         random = random_expert_actions(obs.shape[0], generator, obs.device)
         proposals = torch.where(explore.unsqueeze(1), random, greedy)
         action, expert = polite_gate(proposals, safe)
-        seed_of_env = torch.arange(obs.shape[0], device=obs.device) // (obs.shape[0] // self.seeds)
-        member = torch.where(expert >= 0, seed_of_env * self.members_per_seed + expert, expert)
+        seed = seed_of_env(obs.shape[0], self.seeds, obs.device)
+        member = torch.where(expert >= 0, seed * self.members_per_seed + expert, expert)
         return action, member

@@ -12,11 +12,13 @@ from dataclasses import asdict, dataclass, field
 
 import torch
 
+from highway_srl.agents.checkpoint import policy_tensors, split_policy_tensors
 from highway_srl.agents.dqn import DQNConfig, DQNLearner
 from highway_srl.agents.methods import Method, make_method
 from highway_srl.agents.replay import ExpertReplay
+from highway_srl.agents.rollout import policy_step
 from highway_srl.constants import OBS_DIM
-from highway_srl.rules import deployment_step_reward
+from highway_srl.rules.episode import EpisodeStats
 from highway_srl.sim import World
 from highway_srl.sim.state import WorldState
 
@@ -58,6 +60,11 @@ class TrainConfig:
         return TrainConfig(dqn=DQNConfig(**dqn), **d)
 
 
+# resume/ keys of the episode accumulators (EpisodeStats field -> key), kept from the first checkpoints
+EPISODE_KEYS = {"ret": "episode.ep_return", "deploy": "episode.ep_deploy", "speed": "episode.ep_speed",
+                "length": "episode.ep_len", "collision": "episode.ep_collision", "success": "episode.ep_success"}
+
+
 @dataclass
 class Episode:
     seed: int
@@ -90,19 +97,12 @@ class Trainer:
         self.replay = ExpertReplay(self.method.num_members, OBS_DIM, cfg.dqn.buffer_capacity, self.device,
                                    with_cost=self.method.uses_cost)
         self.gen = torch.Generator(device=self.device).manual_seed(cfg.seeds[0] + 12345)
-        self.seed_of_env = torch.arange(self.batch, device=self.device) // cfg.envs
         self.vector_steps = 0
         # acting member counts, slot 0 = the final fallback (no expert)
         self.usage = torch.zeros(self.method.num_members + 1, dtype=torch.long, device=self.device)
-        self._zero_episode_stats()
+        # the deployment reward R_r is tracked for every method alike
+        self.stats = EpisodeStats(cfg.scenario, self.batch, self.device, self.world.max_steps)
         self.current = self.layer.observe(self.world)
-
-    # ------------------------------------------------------------------ bookkeeping
-    def _zero_episode_stats(self) -> None:
-        z = lambda dtype=torch.float32: torch.zeros(self.batch, dtype=dtype, device=self.device)  # noqa: E731
-        self.ep_return, self.ep_deploy, self.ep_speed = z(), z(), z()
-        self.ep_len = z(torch.long)
-        self.ep_collision, self.ep_success = z(torch.bool), z(torch.bool)
 
     @property
     def env_steps(self) -> int:
@@ -115,31 +115,18 @@ class Trainer:
         cur = self.current
         eps = cfg.dqn.epsilon(self.env_steps)
         explore = torch.rand(self.batch, generator=self.gen, device=self.device) < eps
-        decision = self.method.decide(self.learner, cur, explore, self.gen)
-        lane, speed = layer.act(decision.action, decision.use_second)
+        t = policy_step(self.method, self.learner, world, layer, cur, explore, self.gen, self.stats, train=True)
+        decision, events, nxt = t.decision, t.events, t.view
         self.usage += torch.bincount(decision.member + 1, minlength=self.usage.shape[0])
-        events = world.step(lane, speed)
-        nxt = layer.observe(world)
-        flags = world.stage_flags()
         model = cur.select(decision.use_second)
-        reward, cost = self.method.reward(cfg.scenario, nxt.primary, events, flags)
-        self.method.store(self.replay, decision, model.obs, reward, nxt.primary.obs, events.terminated, cost,
+        self.method.store(self.replay, decision, model.obs, t.reward, nxt.primary.obs, events.terminated, t.cost,
                           share=cfg.share_transitions)
-
-        # episode bookkeeping (the deployment reward R_r is tracked for every method alike)
-        deploy = deployment_step_reward(cfg.scenario, nxt.primary.speed_ratio, r_star=nxt.primary.r_star,
-                                        r_merge=flags["merged"], r_exit1=flags["exit1"], r_exit2=flags["exit2"])
-        self.ep_return += reward
-        self.ep_deploy += deploy
-        self.ep_speed += world.ego_speed
-        self.ep_len += 1
-        self.ep_collision |= events.collision
-        self.ep_success |= events.success
         done = events.terminated | events.truncated
         self.vector_steps += 1
         finished: list[Episode] = []
         if bool(done.any()):
-            finished = self._finish(done, flags)
+            finished = [Episode(cfg.seeds[r.env // cfg.envs], self.env_steps, r.ret, r.length, r.collision,
+                                r.avg_speed, r.success, r.deploy_reward) for r in self.stats.finish(done)]
             world.reset(done)
             layer.reset(done)
             nxt = layer.observe(world)
@@ -147,26 +134,8 @@ class Trainer:
 
         if self.env_steps >= cfg.dqn.learning_starts and cfg.updates_per_step > 0:
             self._update(decision.member)
-        self.method.after_step(self, events, cost, done)
+        self.method.after_step(self, events, t.cost, done)
         return finished
-
-    def _finish(self, done: torch.Tensor, flags: dict) -> list[Episode]:
-        idx = done.nonzero().squeeze(1)
-        success = self.ep_success | (flags["merged"] if self.config.scenario == "merge" else self.ep_success)
-        collided = self.ep_collision
-        deploy = self.ep_deploy - float(self.world.max_steps) * collided.float()
-        rows = torch.stack([
-            self.seed_of_env.float(), self.ep_return, self.ep_len.float(), collided.float(),
-            self.ep_speed / self.ep_len.clamp(min=1).float(), (success & ~collided).float(), deploy,
-        ], 1)[idx].cpu().tolist()
-        out = [Episode(self.config.seeds[int(r[0])], self.env_steps, r[1], int(r[2]), bool(r[3]), r[4], bool(r[5]), r[6])
-               for r in rows]
-        for t in (self.ep_return, self.ep_deploy, self.ep_speed):
-            t[idx] = 0.0
-        self.ep_len[idx] = 0
-        self.ep_collision[idx] = False
-        self.ep_success[idx] = False
-        return out
 
     def _update(self, acted: torch.Tensor) -> None:
         cfg = self.config
@@ -181,31 +150,29 @@ class Trainer:
     def state_dict(self) -> dict[str, torch.Tensor]:
         """Everything a resumed run needs to continue exactly: weights, targets, Adam moments, counters,
         replay buffers, the worlds' state, the rule layer's target lanes, episode accumulators and RNG."""
-        state = {f"learner.{k}": v for k, v in self.learner.state_dict().items()}
+        state = policy_tensors(self.learner, self.method)
         state.update(self.replay.state_dict())
         for name, value in vars(self.world.state).items():
             state[f"world.{name}"] = value
         state["layer.target_lane"] = self.layer.target_lane
-        for name in ("ep_return", "ep_deploy", "ep_speed", "ep_len", "ep_collision", "ep_success"):
-            state[f"episode.{name}"] = getattr(self, name)
+        for name, value in self.stats.state_dict().items():
+            state[EPISODE_KEYS[name]] = value
         state["rng.trainer"] = self.gen.get_state()
         state["counters.vector_steps"] = torch.tensor([self.vector_steps])
         state["counters.usage"] = self.usage
-        state.update({f"method.{k}": v for k, v in self.method.state_dict().items()})
         return {k: v.detach().contiguous() for k, v in state.items()}
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
-        pick = lambda prefix: {k[len(prefix):]: v for k, v in state.items() if k.startswith(prefix)}  # noqa: E731
-        self.learner.load_state_dict(pick("learner."))
+        learner, method = split_policy_tensors(state)
+        self.learner.load_state_dict(learner)
         self.replay.load_state_dict(state)
-        world = pick("world.")
+        world = {k[len("world."):]: v for k, v in state.items() if k.startswith("world.")}
         self.world.state = WorldState(**{k: v.to(self.device) for k, v in world.items()})
         self.layer.reset()
         self.layer.target_lane = state["layer.target_lane"].to(self.device)
-        for name in ("ep_return", "ep_deploy", "ep_speed", "ep_len", "ep_collision", "ep_success"):
-            setattr(self, name, state[f"episode.{name}"].to(self.device).clone())
+        self.stats.load_state_dict({name: state[key] for name, key in EPISODE_KEYS.items()})
         self.gen.set_state(state["rng.trainer"].cpu() if self.device.type == "cpu" else state["rng.trainer"])
         self.vector_steps = int(state["counters.vector_steps"][0])
         self.usage = state["counters.usage"].to(self.device).clone()
-        self.method.load_state_dict(pick("method."))
+        self.method.load_state_dict(method)
         self.current = self.layer.observe(self.world)

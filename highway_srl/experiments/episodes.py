@@ -26,9 +26,9 @@ def render_episode(run, scenario, traffic, adversarial, policy, seed, out: Path,
     if out.suffix.lower() != ".gif":
         raise ValueError(f"--out must end in .gif, got {str(out)!r}")
     if run is not None:
-        from highway_srl.experiments.policy import load_policy
+        from highway_srl.experiments.policy import load_driver
 
-        driver, scenario = load_policy(run, scenario)
+        driver, scenario = load_driver(run, scenario)
     else:
         driver = _policy_driver(policy)
         scenario = scenario or "two-lane"

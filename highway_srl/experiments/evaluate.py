@@ -11,57 +11,39 @@ from pathlib import Path
 
 import torch
 
-from highway_srl.agents.dqn import DQNLearner
-from highway_srl.agents.methods import make_method
-from highway_srl.constants import OBS_DIM, TRAFFIC_LEVELS
+from highway_srl.agents.rollout import policy_step
+from highway_srl.constants import TRAFFIC_LEVELS
+from highway_srl.experiments.policy import load_policy
 from highway_srl.experiments.runs import provenance, write_json
-from highway_srl.rules import SafetyLayer, collision_free_rate, deployment_step_reward, mean_interval, success_rate
+from highway_srl.rules import SafetyLayer, collision_free_rate, mean_interval, success_rate
+from highway_srl.rules.episode import EpisodeStats
 from highway_srl.sim import World
 
 EVAL_SEED_BASE = 1_000_000_000  # evaluation episodes never reuse a training seed
 
 
 def run_episodes(world, method, learner, on_step=None) -> dict[str, torch.Tensor]:
-    """Drive one episode in every env of `world` (no resets); per-env results (B,).
+    """Drive one episode in every env of `world` (no resets); per-env results (B,) on the CPU.
 
-    on_step(t), if given, is called after step t (1-based) with no tensor read (progress display)."""
+    on_step(t), if given, is called before step t (0-based) with no tensor read (progress display)."""
     make_layer = getattr(method, "make_layer", None)  # a Method; duck-typed test policies give layer_options
     layer = make_layer(world.road) if make_layer else SafetyLayer(world.road, **method.layer_options)
     b, dev = world.num_envs, world.device
+    stats = EpisodeStats(world.scenario, b, dev, world.max_steps)
     alive = torch.ones(b, dtype=torch.bool, device=dev)
-    collided = torch.zeros(b, dtype=torch.bool, device=dev)
-    success = torch.zeros(b, dtype=torch.bool, device=dev)
-    speed = torch.zeros(b, device=dev)
-    reward = torch.zeros(b, device=dev)
-    steps = torch.zeros(b, device=dev)
     no_explore = torch.zeros(b, dtype=torch.bool, device=dev)
-    step = layer.observe(world)
-    for t in range(world.max_steps):
+    view = layer.observe(world)
+    for step_no in range(world.max_steps):
         if on_step is not None:
-            on_step(t)
-        decision = method.decide(learner, step, no_explore, None)
-        lane, target = layer.act(decision.action, decision.use_second)
-        events = world.step(lane, target)
-        step = layer.observe(world)
-        flags = world.stage_flags()
-        r = deployment_step_reward(world.scenario, step.primary.speed_ratio, r_star=step.primary.r_star,
-                                   r_merge=flags["merged"], r_exit1=flags["exit1"], r_exit2=flags["exit2"])
-        reward += torch.where(alive, r, 0.0)
-        speed += torch.where(alive, world.ego_speed, 0.0)
-        steps += alive.float()
-        collided |= alive & events.collision
-        success |= alive & events.success
-        alive &= ~(events.terminated | events.truncated)
+            on_step(step_no)
+        t = policy_step(method, learner, world, layer, view, no_explore, None, stats, alive=alive)
+        view = t.view
+        alive &= ~(t.events.terminated | t.events.truncated)
         if not bool(alive.any()):
             break
-    if world.scenario == "merge":
-        success = world.stage_flags()["merged"]
-    return {
-        "collided": collided.cpu(),
-        "success": (success & ~collided).cpu(),
-        "avg_speed": (speed / steps.clamp(min=1)).cpu(),
-        "deploy_reward": (reward - float(world.max_steps) * collided.float()).cpu(),
-    }
+    results = stats.results()
+    return {"collided": results["collision"].cpu(), "success": results["success"].cpu(),
+            "avg_speed": results["avg_speed"].cpu(), "deploy_reward": results["deploy_reward"].cpu()}
 
 
 def summarise(results: dict[str, torch.Tensor], scenario: str) -> dict:
@@ -82,11 +64,8 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
                  seed: int = 0, progress=None) -> dict:
     """progress(done, total), if given, is called as the work advances (vector steps on our simulator,
     episodes on the others)."""
-    from highway_srl.experiments.train import load_learner_state
-
-    cfg, tensors, meta = load_learner_state(run)
-    if scenario is not None and scenario != cfg.scenario:
-        raise ValueError(f"run {str(run)!r} was trained on scenario {cfg.scenario!r}, not {scenario!r}")
+    policy = load_policy(run, scenario, device)
+    cfg, method, learner = policy.config, policy.method, policy.learner
     scenario = cfg.scenario
     adversarial = cfg.adversarial if adversarial is None else adversarial
     traffics = list(traffics or [cfg.traffic])
@@ -96,10 +75,6 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
     if episodes < 1:
         raise ValueError(f"episodes must be positive, got {episodes}")
     seeds = len(cfg.seeds)
-    method = make_method(cfg.method, scenario, seeds, cfg.options)
-    learner = DQNLearner(method.num_members, method.action_mask(), cfg.dqn, device, OBS_DIM, method.out_dim)
-    learner.load_state_dict(tensors)
-    method.load_state_dict({k[len("method."):]: v for k, v in tensors.items() if k.startswith("method.")})
     report = {"run": str(run), "method": cfg.method, "scenario": scenario, "adversarial": adversarial,
               "backend": backend, "episodes_per_level": episodes, "trained_seeds": list(cfg.seeds), "levels": {},
               **provenance()}

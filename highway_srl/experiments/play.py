@@ -25,7 +25,8 @@ import torch
 from highway_srl.constants import DT_S, STYLE_NAMES, VEHICLE_LENGTH_M, VEHICLE_WIDTH_M
 from highway_srl.experiments.evaluate import summarise
 from highway_srl.experiments.runs import append_jsonl, provenance, read_jsonl, write_json
-from highway_srl.rules import deployment_step_reward, scenario_reward
+from highway_srl.rules import scenario_reward
+from highway_srl.rules.episode import EpisodeStats, advance
 from highway_srl.rules.raw import FIVE_ACTIONS, LANE_LEFT, LANE_RIGHT, RawSafetyLayer
 from highway_srl.rules.safe_actions import FASTER, IDLE, SLOWER
 from highway_srl.sim import World
@@ -203,8 +204,8 @@ def _wait_for_start(pygame, screen, world, ep: int, episodes: int) -> bool:
 def _drive_episode(pygame, world, layer, screen, keys, clock, fps, on_tick) -> dict | None:
     """One episode at `fps` decisions per second; the episode's log fields, or None if the person stopped."""
     scenario = world.scenario
-    ret = deploy = speed_sum = 0.0
-    collided = success = False
+    # float64 sums: the numbers a person's episode always had (Python floats), not the batched float32
+    stats = EpisodeStats(scenario, 1, world.device, world.max_steps, dtype=torch.float64)
     for t in range(world.max_steps):
         on_tick(t)
         for event in pygame.event.get():
@@ -212,30 +213,21 @@ def _drive_episode(pygame, world, layer, screen, keys, clock, fps, on_tick) -> d
                 return None
             keys.feed(event)
         action = keys.action()
-        lane, speed = layer.act(torch.tensor([action]))
-        events = world.step(lane, speed)
-        step = layer.observe(world)
-        flags = world.stage_flags()
+        events, step, flags = advance(world, layer, torch.tensor([action]))
         mapped = layer.mapped.last.primary  # the paper's view: the reward and R_r every method is scored by
-        ret += float(scenario_reward(scenario, mapped.r_rm, events.collision, r_merge=flags["merged"],
-                                     r_exit1=flags["exit1"], r_exit2=flags["exit2"])[0])
-        deploy += float(deployment_step_reward(scenario, step.primary.speed_ratio, r_star=step.primary.r_star,
-                                               r_merge=flags["merged"], r_exit1=flags["exit1"], r_exit2=flags["exit2"])[0])
-        speed_sum += float(world.ego_speed[0])
-        collided |= bool(events.collision[0])
-        success |= bool(events.success[0])
+        reward = scenario_reward(scenario, mapped.r_rm, events.collision, r_merge=flags["merged"],
+                                 r_exit1=flags["exit1"], r_exit2=flags["exit2"])
+        stats.add(events, flags, step.primary, world.ego_speed, reward)
+        collided = bool(stats.collision[0])
         screen.draw(world, [f"t {(t + 1) * DT_S:5.1f} s   speed {float(world.ego_speed[0]):4.1f} m/s   "
                             f"{FIVE_ACTIONS[action]}", "COLLISION" if collided else ""], collision=collided)
         if fps:
             clock.tick(fps)
         if bool(events.terminated[0] | events.truncated[0]):
             break
-    length = t + 1
-    if scenario == "merge":
-        success = bool(world.stage_flags()["merged"][0])
-    return {"return": round(ret, 4), "length": length, "collision": collided, "avg_speed": round(speed_sum / length, 4),
-            "success": success and not collided,
-            "deploy_reward": round(deploy - float(world.max_steps) * collided, 4)}
+    row = stats.finish(torch.ones(1, dtype=torch.bool))[0]
+    return {"return": round(row.ret, 4), "length": row.length, "collision": row.collision,
+            "avg_speed": round(row.avg_speed, 4), "success": row.success, "deploy_reward": round(row.deploy_reward, 4)}
 
 
 def write_manual_metrics(out: Path, config: dict, rows: list[dict]) -> dict:

@@ -1,13 +1,19 @@
-"""A trained run as a driver for renderings: greedy actions, with the acting expert and safe set shown."""
+"""A trained run's policy: one loader for `evaluate`, `render` and the tests, and a driver for renderings."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
+
 import torch
 
+from highway_srl.agents.checkpoint import CheckpointError, load_checkpoint, split_policy_tensors
 from highway_srl.agents.dqn import DQNLearner
 from highway_srl.agents.gating import EXPERT_NAMES
-from highway_srl.agents.methods import make_method
+from highway_srl.agents.methods import Method, make_method
+from highway_srl.agents.trainer import TrainConfig
 from highway_srl.constants import OBS_DIM
+from highway_srl.experiments.runs import read_json, run_folder
 
 
 # The reward machine's states (rules/reward_machine.py, §3.2) in words: K = keeping the target lane,
@@ -19,19 +25,46 @@ def rm_label(state: int) -> str:
     return f"RM state u{state + 1}: {RM_MEANINGS[state]}"
 
 
-def load_policy(run, scenario: str | None):
-    """(driver(world) -> ((lane, speed), text lines), scenario) for env 0 of a world, from a finished run."""
-    from highway_srl.experiments.train import load_learner_state
+@dataclass
+class Policy:
+    config: TrainConfig  # the run's training configuration
+    method: Method  # with its own state loaded (e.g. LM-RL's λ)
+    learner: DQNLearner  # the trained networks, on the device asked for
+    meta: dict  # the model's meta.json
 
-    cfg, tensors, _ = load_learner_state(run)
+
+def read_model(run: str | Path, expect: dict | None = None) -> tuple[TrainConfig, dict[str, torch.Tensor], dict]:
+    """(TrainConfig, the model's tensors as saved, meta) of a finished run; clear errors for anything wrong."""
+    folder = run_folder(run)
+    cfg = TrainConfig.from_dict(read_json(folder / "config.json")["config"])
+    if not (folder / "model").exists():
+        raise CheckpointError(f"run {str(folder)!r} has no final model yet (interrupted? resume it with --resume)")
+    expected = {"method": cfg.method, "scenario": cfg.scenario}
+    if expect:
+        expected.update(expect)
+    tensors, meta = load_checkpoint(folder / "model", expect=expected)
+    return cfg, tensors, meta
+
+
+def load_policy(run: str | Path, scenario: str | None = None, device: str = "cpu") -> Policy:
+    """The trained policy of a finished run; scenario, if given, must be the one it was trained on."""
+    cfg, tensors, meta = read_model(run)
     if scenario is not None and scenario != cfg.scenario:
         raise ValueError(f"run {str(run)!r} was trained on scenario {cfg.scenario!r}, not {scenario!r}")
     method = make_method(cfg.method, cfg.scenario, len(cfg.seeds), cfg.options)
+    learner = DQNLearner(method.num_members, method.action_mask(), cfg.dqn, device, OBS_DIM, method.out_dim)
+    learner_state, method_state = split_policy_tensors(tensors)
+    learner.load_state_dict(learner_state)
+    method.load_state_dict(method_state)
+    return Policy(cfg, method, learner, meta)
+
+
+def load_driver(run, scenario: str | None):
+    """(driver(world) -> ((lane, speed), text lines), scenario) for env 0 of a world, from a finished run."""
+    policy = load_policy(run, scenario)
+    cfg, method, learner = policy.config, policy.method, policy.learner
     if len(cfg.seeds) > 1:
         raise ValueError(f"run {str(run)!r} holds {len(cfg.seeds)} seeds; render needs a single-seed run")
-    learner = DQNLearner(method.num_members, method.action_mask(), cfg.dqn, "cpu", OBS_DIM, method.out_dim)
-    learner.load_state_dict(tensors)
-    method.load_state_dict({k[len("method."):]: v for k, v in tensors.items() if k.startswith("method.")})
     state = {"layer": None}
 
     def driver(world):

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import torch
 
-from highway_srl.agents.checkpoint import CheckpointError, load_checkpoint, save_checkpoint, write_atomic
+from highway_srl.agents.checkpoint import CheckpointError, load_checkpoint, policy_tensors, save_checkpoint, write_atomic
 from highway_srl.agents.trainer import Episode, Trainer, TrainConfig
 from highway_srl.experiments.runs import (
     append_jsonl, check_output_folder, holds_other_files, lock_run, progress_bar, provenance, read_json, read_jsonl,
@@ -227,9 +227,7 @@ def _train_locked(cfg: TrainConfig, out: Path, resume: bool, checkpoint_every: i
         if bar is not None:
             bar.close()  # ends the bar's line, so a message after an interrupt starts on its own line
     wall = prior_wall + time.perf_counter() - started
-    learner_state = {f"learner.{k}": v for k, v in trainer.learner.state_dict().items()}
-    learner_state.update({f"method.{k}": v for k, v in trainer.method.state_dict().items()})  # e.g. LM-RL's λ
-    save_checkpoint(out / "model", learner_state, {**_meta(cfg, trainer, code), "wall_s": wall})
+    save_checkpoint(out / "model", policy_tensors(trainer.learner, trainer.method), {**_meta(cfg, trainer, code), "wall_s": wall})
     metrics = training_metrics(read_jsonl(log), list(cfg.seeds))
     metrics.update({"method": cfg.method, "scenario": cfg.scenario, "traffic": cfg.traffic,
                     "adversarial": cfg.adversarial, "env_steps_per_seed": trainer.env_steps, "seeds": list(cfg.seeds),
@@ -257,23 +255,6 @@ def _remove_resume(path: Path) -> None:
         for f in path.iterdir():
             f.unlink()
         path.rmdir()
-
-
-def load_learner_state(run: str | Path, expect: dict | None = None):
-    """(TrainConfig, learner tensors, meta) of a finished run; clear errors for anything wrong."""
-    from highway_srl.experiments.runs import run_folder
-
-    folder = run_folder(run)
-    cfg = TrainConfig.from_dict(read_json(folder / "config.json")["config"])
-    if not (folder / "model").exists():
-        raise CheckpointError(f"run {str(folder)!r} has no final model yet (interrupted? resume it with --resume)")
-    expected = {"method": cfg.method, "scenario": cfg.scenario}
-    if expect:
-        expected.update(expect)
-    tensors, meta = load_checkpoint(folder / "model", expect=expected)
-    state = {k[len("learner."):]: v for k, v in tensors.items() if k.startswith("learner.")}
-    state.update({k: v for k, v in tensors.items() if k.startswith("method.")})  # the learner ignores these keys
-    return cfg, state, meta
 
 
 def bench_train(method: str, scenario: str, traffic: str, envs: int, steps: int, device: str, seeds: int = 1) -> dict:

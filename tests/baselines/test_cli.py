@@ -35,13 +35,15 @@ def test_lm_rl_saves_its_lagrange_multiplier_with_the_model(tmp_path):
     from highway_srl.agents.dqn import DQNConfig
     from highway_srl.agents.trainer import TrainConfig
     from highway_srl.experiments.evaluate import evaluate_run
-    from highway_srl.experiments.train import load_learner_state, train_run
+    from highway_srl.experiments.policy import load_policy, read_model
+    from highway_srl.experiments.train import train_run
 
     cfg = TrainConfig(method="lm-rl", traffic="A", steps=64, envs=4, options={"lambda_init": 0.7},
                       dqn=DQNConfig(learning_starts=32, batch_size=16, total_steps=64, buffer_capacity=64))
     train_run(cfg, tmp_path / "lm", progress=False)
-    _, tensors, _ = load_learner_state(tmp_path / "lm")
+    _, tensors, _ = read_model(tmp_path / "lm")
     assert torch.allclose(tensors["method.lambda"], torch.tensor([0.7]))
+    assert torch.allclose(load_policy(tmp_path / "lm").method.lam, torch.tensor([0.7]))
     report = evaluate_run(tmp_path / "lm", episodes=2)
     assert report["method"] == "lm-rl"
 

@@ -7,7 +7,8 @@ import torch
 
 from highway_srl.agents.trainer import Trainer
 from highway_srl.experiments import train as train_mod
-from highway_srl.experiments.train import load_learner_state, train_run
+from highway_srl.experiments.policy import load_policy
+from highway_srl.experiments.train import train_run
 
 
 def _run(trainer, steps):
@@ -48,9 +49,8 @@ def test_killed_run_resumes_from_checkpoint_with_same_final_model(tmp_path, monk
     monkeypatch.setattr(Trainer, "step", real_step)
     train_run(None, tmp_path / "killed", resume=True, checkpoint_every=400, progress=False)
 
-    _, straight, _ = load_learner_state(tmp_path / "straight")
-    _, resumed, _ = load_learner_state(tmp_path / "killed")
-    assert torch.equal(straight["online.flat"], resumed["online.flat"])
+    straight, resumed = load_policy(tmp_path / "straight").learner, load_policy(tmp_path / "killed").learner
+    assert torch.equal(straight.online.flat, resumed.online.flat)
     log = lambda p: [json.loads(line) for line in (p / "episodes.jsonl").read_text().splitlines()]  # noqa: E731
     assert log(tmp_path / "straight") == log(tmp_path / "killed")
     assert not (tmp_path / "killed" / "resume").exists()
@@ -60,11 +60,10 @@ def test_saved_model_gives_the_same_greedy_actions(tmp_path, short_config):
     cfg = short_config(steps=400)
     train_run(cfg, tmp_path / "run", progress=False)
     trainer = Trainer(cfg)
-    _, tensors, meta = load_learner_state(tmp_path / "run")
-    trainer.learner.load_state_dict(tensors)
+    _run(trainer, 400)
+    policy = load_policy(tmp_path / "run")
     obs = trainer.current.primary.obs
-    again = Trainer(cfg)
-    again.learner.load_state_dict(load_learner_state(tmp_path / "run")[1])
-    assert torch.equal(trainer.learner.greedy(obs), again.learner.greedy(obs))
+    assert torch.equal(trainer.learner.greedy(obs), policy.learner.greedy(obs))
+    meta = policy.meta
     assert meta["method"] == "moe-rm-srl" and meta["scenario"] == "two-lane" and "commit" in meta
     assert train_mod.read_json(tmp_path / "run" / "metrics.json")["env_steps_per_seed"] == 400

@@ -1,0 +1,127 @@
+"""Episode accounting (§4.2): return, deployment reward R_r, collision, average speed and success of B
+running episodes, accumulated step by step on the device and read back once per batch of finished ones.
+
+The one place that says how an episode is scored; the trainer, `evaluate`, `play` (and the Gymnasium env
+and the backends' episode loop) feed it one step at a time:
+
+    stats = EpisodeStats(world.scenario, world.num_envs, world.device, world.max_steps)
+    ... every step:
+    events, view, flags = advance(world, layer, action)            # act -> world step -> observe
+    stats.add(events, flags, view.primary, world.ego_speed, reward)  # reward: the training reward, or None
+    rows = stats.finish(done)                                      # finished envs, one host read; zeroed
+
+Scoring, as in the paper's Tables 5-6:
+- R_r sums deployment_step_reward over the episode's steps, minus max_steps (320) on a collision;
+- merge: an episode succeeds once the ego has merged (the latched flag), whatever ended it: the success
+  event only marks the step of merging;
+- success never counts in an episode with a collision.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from highway_srl.rules.metrics import deployment_step_reward
+
+def advance(world, layer, action: torch.Tensor, use_second: torch.Tensor | None = None):
+    """act -> world step -> observe: the action (B,) through the rule layer's control mapping, one world
+    step, the layer's view of the new state. Returns (events, view, flags): StepEvents, the layer's step
+    (SafetyStep) and the world's latched stage flags after the step."""
+    lane, speed = layer.act(action, use_second)
+    events = world.step(lane, speed)
+    view = layer.observe(world)
+    return events, view, world.stage_flags()
+
+
+RESULT_FIELDS = ("env", "return", "length", "collision", "avg_speed", "success", "deploy_reward")
+
+
+@dataclass
+class EpisodeRow:
+    """One finished episode as host numbers."""
+
+    env: int  # index of the env in the batch
+    ret: float  # the training return (sum of the rewards passed to add)
+    length: int  # steps
+    collision: bool
+    avg_speed: float  # m/s
+    success: bool  # reached the task's goal without a collision (merge, exit)
+    deploy_reward: float  # the paper's R_r
+
+
+class EpisodeStats:
+    """Accumulators of B running episodes, (B,) tensors on one device.
+
+    dtype: of the sums; float32 in the batched loops, float64 where one episode is summed on the host's
+    terms (play: the same numbers as adding Python floats).
+    """
+
+    STATE = ("ret", "deploy", "speed", "length", "collision", "success")
+
+    def __init__(self, scenario: str, num_envs: int, device: torch.device | str, max_steps: int,
+                 dtype: torch.dtype = torch.float32):
+        self.scenario, self.max_steps = scenario, max_steps
+        z = lambda dt=dtype: torch.zeros(num_envs, dtype=dt, device=device)  # noqa: E731
+        self.ret, self.deploy, self.speed = z(), z(), z()
+        self.length = z(torch.long)
+        self.collision, self.success = z(torch.bool), z(torch.bool)
+
+    def add(self, events, flags: dict, view, ego_speed: torch.Tensor, reward: torch.Tensor | None = None,
+            alive: torch.Tensor | None = None) -> None:
+        """Account one step of every env: events (StepEvents), flags (the world's latched stage flags after
+        the step), view (the rule layer's primary model step after the step: speed_ratio, r_star),
+        ego_speed (B,) m/s, reward (B,) the training reward or None; alive (B,) bool: only these envs
+        count this step (None: all)."""
+        deploy = deployment_step_reward(self.scenario, view.speed_ratio, r_star=view.r_star, r_merge=flags["merged"],
+                                        r_exit1=flags["exit1"], r_exit2=flags["exit2"])
+        success = events.success | flags["merged"] if self.scenario == "merge" else events.success
+        collision = events.collision
+        if alive is None:
+            if reward is not None:
+                self.ret += reward
+            self.deploy += deploy
+            self.speed += ego_speed
+            self.length += 1
+        else:
+            if reward is not None:
+                self.ret += torch.where(alive, reward, 0.0)
+            self.deploy += torch.where(alive, deploy, 0.0)
+            self.speed += torch.where(alive, ego_speed, 0.0)
+            self.length += alive.long()
+            collision, success = alive & collision, alive & success
+        self.collision |= collision
+        self.success |= success
+
+    def results(self) -> dict[str, torch.Tensor]:
+        """The scores of every env's episode so far, (B,) tensors on the device (RESULT_FIELDS but env)."""
+        collided = self.collision
+        return {
+            "return": self.ret,
+            "length": self.length,
+            "collision": collided,
+            "avg_speed": self.speed / self.length.clamp(min=1).to(self.speed.dtype),
+            "success": self.success & ~collided,
+            "deploy_reward": self.deploy - float(self.max_steps) * collided.to(self.deploy.dtype),
+        }
+
+    def finish(self, done: torch.Tensor) -> list[EpisodeRow]:
+        """Rows of the envs where done (B,) is True, read with one host read; their accumulators restart."""
+        idx = done.nonzero().squeeze(1)
+        r = self.results()
+        env = torch.arange(done.shape[0], device=done.device)
+        rows = torch.stack([env.to(self.ret.dtype)] + [r[k].to(self.ret.dtype) for k in RESULT_FIELDS[1:]], 1)
+        out = [EpisodeRow(int(v[0]), v[1], int(v[2]), bool(v[3]), v[4], bool(v[5]), v[6])
+               for v in rows[idx].cpu().tolist()]
+        for name in self.STATE:
+            getattr(self, name)[idx] = 0
+        return out
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        return {name: getattr(self, name) for name in self.STATE}
+
+    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
+        for name in self.STATE:
+            old = getattr(self, name)
+            setattr(self, name, state[name].to(device=old.device, dtype=old.dtype).clone())
