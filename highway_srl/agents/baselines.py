@@ -1,4 +1,4 @@
-"""The paper's baselines (§4.2), the rule-based driver and the ablations of Table 6, as `Method`s.
+"""The paper's baselines (§4.2) and the rule-based driver, as `Method`s (the ablations: agents/ablations.py).
 
 Each one is the few lines that make it different; the trainer, replay, learner, logs and metrics are
 shared. docs/paper-notes.md says exactly what each is and which choices the paper leaves open.
@@ -22,7 +22,7 @@ import torch
 
 from highway_srl.agents.dqn import DQNLearner
 from highway_srl.agents.ensemble import ensemble_forward
-from highway_srl.agents.methods import METHODS, Decision, Method, MoERMSRL
+from highway_srl.agents.methods import Decision, Method
 from highway_srl.agents.moe import grouped_q, seed_of_env
 from highway_srl.agents.rule_based import rule_based_action, rule_based_decision
 from highway_srl.constants import EPISODE_STEPS
@@ -310,57 +310,3 @@ class Manual(Method):
     def __init__(self, scenario, seeds, options):
         raise ValueError(f"method 'manual' is a person at the keyboard: run `highway-srl play --scenario {scenario} "
                          "--traffic C --out FOLDER`; its episodes.jsonl enters the same tables")
-
-
-# ------------------------------------------------------------------ ablations of MoE-RM-SRL (Table 6)
-ABLATIONS = ("no_mapping", "no_moe", "no_rm")
-
-
-class MoEAblation(MoERMSRL):
-    """MoE-RM-SRL with the mappings (no_mapping: the raw view over A*) and/or the RM reward (no_rm: the
-    speed reward) removed; the 11 gated experts stay."""
-
-    def __init__(self, scenario, seeds, options):
-        super().__init__(scenario, seeds, options)
-        self.no_mapping, self.no_rm = bool(self.options.get("no_mapping")), bool(self.options.get("no_rm"))
-        self.name = "moe-rm-srl/" + "+".join(k for k in ABLATIONS if self.options.get(k))
-
-    def make_layer(self, road):
-        return RawSafetyLayer(road, five_actions=False) if self.no_mapping else super().make_layer(road)
-
-    def reward(self, scenario, nxt, events, flags):
-        if self.no_rm:
-            return speed_reward(scenario, nxt.obs, events, flags), None
-        return super().reward(scenario, nxt, events, flags)
-
-
-class NoMoE(SingleDQN):
-    """w/o MoE: one DQN over A*, no gate and so no shield; what is left of the safety logic is the RM reward
-    (this is rm-rl; with no_mapping on the raw view, with no_rm on the speed reward)."""
-
-    allowed_options = frozenset(ABLATIONS)
-
-    def __init__(self, scenario, seeds, options):
-        super().__init__(scenario, seeds, options)
-        self.view = "raw" if self.options.get("no_mapping") else "mapped"
-        self.reward_kind = "speed" if self.options.get("no_rm") else "rm"
-        self.name = "moe-rm-srl/" + "+".join(k for k in ABLATIONS if self.options.get(k))
-
-
-def make_ablation(scenario: str, seeds: int, options: dict) -> Method:
-    """MoE-RM-SRL with options: no_mapping, no_moe, no_rm (any combination; none set gives the full method)."""
-    unknown = sorted(k for k, v in options.items() if v and k not in ABLATIONS)
-    if unknown:
-        raise ValueError(f"method 'moe-rm-srl' does not take option(s) {', '.join(unknown)}; "
-                         f"its ablations are {', '.join(ABLATIONS)}")
-    if options.get("no_moe"):
-        return NoMoE(scenario, seeds, options)
-    if any(options.get(k) for k in ABLATIONS):
-        return MoEAblation(scenario, seeds, options)
-    return MoERMSRL(scenario, seeds, options)
-
-
-BASELINES: dict[str, type[Method]] = {
-    cls.name: cls for cls in (RL, SRRL, RMRL, MPRL, LMRL, ETRL, RuleBased, Manual)
-}
-METHODS.update(BASELINES)

@@ -116,18 +116,3 @@ class MoERMSRL(Method):
         cols = seed[:, None] * per + torch.arange(per, device=obs.device)
         mask.scatter_(1, cols, holds)
         replay.add_shared(mask, obs, d.action, reward, next_obs, done, cost)
-
-
-METHODS: dict[str, type[Method]] = {"moe-rm-srl": MoERMSRL}
-
-
-def make_method(name: str, scenario: str, seeds: int, options: dict | None = None) -> Method:
-    if name not in METHODS:
-        raise ValueError(f"unknown method {name!r}; choose one of {', '.join(METHODS)}")
-    if name == MoERMSRL.name and options:  # the ablations of Table 6 (and a check of the option names)
-        return _baselines.make_ablation(scenario, seeds, dict(options))
-    return METHODS[name](scenario, seeds, options or {})
-
-
-# The baselines, the rule-based driver and the ablations register themselves in METHODS.
-from highway_srl.agents import baselines as _baselines  # noqa: E402

@@ -14,7 +14,8 @@ import torch
 
 from highway_srl.agents.checkpoint import policy_tensors, split_policy_tensors
 from highway_srl.agents.dqn import DQNConfig, DQNLearner
-from highway_srl.agents.methods import Method, make_method
+from highway_srl.agents.methods import Method
+from highway_srl.agents.registry import make_method
 from highway_srl.agents.replay import ExpertReplay
 from highway_srl.agents.rollout import policy_step
 from highway_srl.constants import OBS_DIM

@@ -112,7 +112,7 @@ def train_config(args):
 
 
 def _cmd_train(args) -> int:
-    from highway_srl.agents.methods import make_method
+    from highway_srl.agents.registry import make_method
     from highway_srl.experiments.train import finished, last_checkpoint_step, train_run
 
     out = Path(args.out)

@@ -10,7 +10,8 @@ import torch
 from highway_srl.agents.checkpoint import CheckpointError, load_checkpoint, split_policy_tensors
 from highway_srl.agents.dqn import DQNLearner
 from highway_srl.agents.gating import EXPERT_NAMES
-from highway_srl.agents.methods import Method, make_method
+from highway_srl.agents.methods import Method
+from highway_srl.agents.registry import make_method
 from highway_srl.agents.trainer import TrainConfig
 from highway_srl.constants import OBS_DIM
 from highway_srl.experiments.runs import read_json, run_folder

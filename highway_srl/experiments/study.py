@@ -241,20 +241,20 @@ ARTEFACTS = ("group1_deployment", "deployment_pareto", "group2", "multilane", "g
 def job_availability(job: Job) -> str | None:
     """None if the job's method (and ablation switches) can run now, else why not, in one sentence.
 
-    Methods come from `highway_srl.agents.methods.METHODS`, filled in by other work as baselines land. An
+    Methods come from `highway_srl.agents.registry.METHODS`. An
     ablation switch counts as implemented only if the method rejects switches it does not know (probe with a
-    made-up one) and accepts this one, or lists it in a `supported_options` attribute: a method that ignores
+    made-up one) and accepts this one, or lists it in an `allowed_options` attribute: a method that ignores
     unknown options would silently train the full model under an ablation's name.
     """
-    from highway_srl.agents.methods import METHODS, make_method
+    from highway_srl.agents.registry import METHODS, make_method
 
     if job.method not in METHODS:
-        return (f"method {job.method!r} is not registered in highway_srl.agents.methods.METHODS "
+        return (f"method {job.method!r} is not registered in highway_srl.agents.registry.METHODS "
                 f"(registered: {', '.join(METHODS) or 'none'})")
     scenario = SCENES[job.scene].scenario
     if not job.options:
         return None
-    declared = getattr(METHODS[job.method], "supported_options", None)
+    declared = getattr(METHODS[job.method], "allowed_options", None)
     if declared is not None:
         missing = [o for o in job.options if o not in declared]
         return None if not missing else (f"method {job.method!r} does not support option(s) "

@@ -8,7 +8,7 @@ import json
 import pytest
 import study_fakes as fakes
 
-from highway_srl.agents import methods as methods_mod
+from highway_srl.agents import registry as methods_mod
 from highway_srl.cli import main
 from highway_srl.experiments import evaluate as evaluate_mod
 from highway_srl.experiments import train as train_mod

@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from highway_srl.agents.methods import METHODS
+from highway_srl.agents.registry import METHODS
 from highway_srl.experiments.runner import reproduce
 from highway_srl.experiments.study import OURS, SCENES
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from highway_srl.agents import methods as methods_mod
+from highway_srl.agents import registry as methods_mod
 from highway_srl.constants import TRAFFIC_LEVELS
 from highway_srl.experiments import paper_numbers as paper
 from highway_srl.experiments.study import (ABLATIONS, ARTEFACTS, BUDGETS, GROUP1_METHODS, GROUP2_SCENES, GROUP3_SCENES,

@@ -16,8 +16,8 @@ def _run(trainer, steps):
         trainer.step()
 
 
-def test_state_dict_round_trip_continues_bit_for_bit(short_config):
-    cfg = short_config(steps=800)
+def test_state_dict_round_trip_continues_bit_for_bit(trainer_config):
+    cfg = trainer_config(steps=800)
     a = Trainer(cfg)
     _run(a, 800)
     b = Trainer(cfg)
@@ -30,8 +30,8 @@ def test_state_dict_round_trip_continues_bit_for_bit(short_config):
     assert torch.equal(a.world.state.x, c.world.state.x)
 
 
-def test_killed_run_resumes_from_checkpoint_with_same_final_model(tmp_path, monkeypatch, short_config):
-    cfg = short_config(steps=800)
+def test_killed_run_resumes_from_checkpoint_with_same_final_model(tmp_path, monkeypatch, trainer_config):
+    cfg = trainer_config(steps=800)
     train_run(cfg, tmp_path / "straight", checkpoint_every=400, progress=False)
 
     real_step, calls = Trainer.step, {"n": 0}
@@ -56,8 +56,8 @@ def test_killed_run_resumes_from_checkpoint_with_same_final_model(tmp_path, monk
     assert not (tmp_path / "killed" / "resume").exists()
 
 
-def test_saved_model_gives_the_same_greedy_actions(tmp_path, short_config):
-    cfg = short_config(steps=400)
+def test_saved_model_gives_the_same_greedy_actions(tmp_path, trainer_config):
+    cfg = trainer_config(steps=400)
     train_run(cfg, tmp_path / "run", progress=False)
     trainer = Trainer(cfg)
     _run(trainer, 400)

@@ -19,8 +19,8 @@ class RandomSafe:
         return Decision(action, expert, None)
 
 
-def test_moe_rm_srl_greedy_policy_beats_random_safe_policy_and_never_collides(short_config):
-    trainer = Trainer(short_config())
+def test_moe_rm_srl_greedy_policy_beats_random_safe_policy_and_never_collides(trainer_config):
+    trainer = Trainer(trainer_config())
     episodes = []
     while trainer.env_steps < trainer.config.steps:
         episodes += trainer.step()

@@ -1,5 +1,11 @@
+import sys
+from pathlib import Path
+
 import pytest
 import torch
+
+# the golden Table 1 (tests/rules/table_1.py) importable by name
+sys.path.insert(0, str(Path(__file__).parents[1] / "rules"))
 
 
 @pytest.fixture(autouse=True)
@@ -13,7 +19,7 @@ def _one_thread():
 
 @pytest.fixture
 def short_config():
-    """1600 steps of two-lane level A, 8 envs (tests/training uses 2400 for MoE-RM-SRL)."""
+    """A method's config: 1600 steps of two-lane level A, 8 envs (trainer_config: 2400 for MoE-RM-SRL)."""
     from highway_srl.agents.dqn import DQNConfig
     from highway_srl.agents.trainer import TrainConfig
 
@@ -22,6 +28,19 @@ def short_config():
                         buffer_capacity=max(steps, 2048))  # never full here; the default would allocate GBs for 11 experts
         return TrainConfig(method=method, scenario="two-lane", traffic="A", steps=steps, envs=8, updates_per_step=2,
                            dqn=dqn, **kw)
+
+    return make
+
+
+@pytest.fixture
+def trainer_config():
+    """MoE-RM-SRL by default: 2400 steps of two-lane level A, 8 envs: enough for the DQN to learn."""
+    from highway_srl.agents.dqn import DQNConfig
+    from highway_srl.agents.trainer import TrainConfig
+
+    def make(steps: int = 2400, **kw) -> TrainConfig:
+        dqn = DQNConfig(total_steps=steps, learning_starts=300, target_update_interval=200, exploration_fraction=0.3)
+        return TrainConfig(scenario="two-lane", traffic="A", steps=steps, envs=8, updates_per_step=2, dqn=dqn, **kw)
 
     return make
 

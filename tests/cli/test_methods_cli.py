@@ -9,6 +9,15 @@ import torch
 from highway_srl.cli import main
 
 
+@pytest.fixture(autouse=True)
+def _one_thread():
+    # tiny networks on a busy 2-core machine: a second intra-op thread only adds OpenMP waits
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 def test_unknown_method_is_a_one_line_cli_error(tmp_path, capsys):
     assert main(["train", "--method", "no-such-method", "--out", str(tmp_path / "run"), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()

@@ -5,16 +5,10 @@ from types import SimpleNamespace
 import pytest
 import torch
 
-from highway_srl.agents.baselines import (
-    COST_LIMIT,
-    LMRL,
-    SRRL,
-    MoEAblation,
-    NoMoE,
-    dual_update,
-    speed_reward,
-)
-from highway_srl.agents.methods import METHODS, MoERMSRL, make_method
+from highway_srl.agents.ablations import MoEAblation, NoMoE
+from highway_srl.agents.baselines import COST_LIMIT, LMRL, SRRL, dual_update, speed_reward
+from highway_srl.agents.methods import MoERMSRL
+from highway_srl.agents.registry import METHODS, make_method
 from highway_srl.agents.trainer import Trainer
 from highway_srl.experiments.evaluate import run_episodes
 from highway_srl.rules import SafetyLayer
@@ -225,5 +219,11 @@ def test_every_method_drives_every_scenario_through_the_trainer_and_resumes():
             for _ in range(3):
                 trainer.step()
             again = Trainer(cfg)
-            again.load_state_dict(trainer.state_dict())
+            # state_dict() returns the live tensors: a copy, as a checkpoint on disk is
+            again.load_state_dict({k: v.clone() for k, v in trainer.state_dict().items()})
+            trainer.step()
             again.step()
+            a, b = trainer.state_dict(), again.state_dict()
+            assert a.keys() == b.keys()
+            differ = [k for k in a if not torch.equal(a[k], b[k])]
+            assert not differ, f"{scenario} {name} {options}: resumed state differs in {differ}"
