@@ -8,6 +8,7 @@ from collections import Counter
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from table_1 import rows
 
 from highway_srl.agents.gating import (
     ACTIONS,
@@ -21,26 +22,9 @@ from highway_srl.agents.gating import (
 
 F, I, S, L = (ACTIONS.index(a) for a in ("Faster", "Idle", "Slower", "LaneChange"))
 
-# Table 1 typed from the paper: (R*_SV1, R*_SV3, R*_SV2, R*_SV4) -> (a_F, a_S, a_I, a_L).
-# Note the column orders: the table lists Slower before Idle, ACTIONS has Idle before Slower.
-TABLE_1 = [
-    ((1, 1, 1, 1), (1, 1, 1, 1)),
-    ((1, 1, 1, 0), (1, 1, 1, 0)),
-    ((1, 1, 0, 1), (1, 1, 1, 0)),
-    ((1, 1, 0, 0), (1, 1, 1, 0)),
-    ((1, 0, 1, 1), (1, 0, 1, 1)),
-    ((1, 0, 1, 0), (1, 0, 1, 0)),
-    ((1, 0, 0, 1), (1, 0, 1, 0)),
-    ((1, 0, 0, 0), (1, 0, 1, 0)),
-    ((0, 1, 1, 1), (0, 1, 0, 1)),
-    ((0, 1, 1, 0), (0, 1, 0, 0)),
-    ((0, 1, 0, 1), (0, 1, 0, 0)),
-    ((0, 1, 0, 0), (0, 1, 0, 0)),
-    ((0, 0, 1, 1), (0, 0, 0, 1)),
-    ((0, 0, 1, 0), (0, 0, 1, 0)),
-    ((0, 0, 0, 1), (0, 0, 1, 0)),
-    ((0, 0, 0, 0), (0, 0, 1, 0)),
-]
+# Table 1 (tests/rules/table_1.py): (R*_SV1, R*_SV3, R*_SV2, R*_SV4) -> (a_F, a_S, a_I, a_L), the paper's
+# column orders: the table lists Slower before Idle, ACTIONS has Idle before Slower.
+TABLE_1 = [((r1, r3, r2, r4), (e["Faster"], e["Slower"], e["Idle"], e["LaneChange"])) for _, (r1, r2, r3, r4), e in rows()]
 
 
 def _safe_row(row: int) -> list[bool]:

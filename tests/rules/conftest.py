@@ -9,9 +9,13 @@ membership by the nearest lane centre, within d_max; it records every query it a
 from __future__ import annotations
 
 import math
+import sys
+from pathlib import Path
 
 import pytest
 import torch
+
+sys.path.insert(0, str(Path(__file__).parent))  # table_1 (the golden Table 1) importable by name
 
 from highway_srl.constants import D_MAX_M
 from highway_srl.sim.road import Road
