@@ -33,7 +33,15 @@ from highway_srl.rules.metrics import (
     wilson_interval,
 )
 from highway_srl.rules.observation import OBS_NAMES, build_observation, observation_ranges
-from highway_srl.rules.pipeline import ModelStep, SafetyLayer, SafetyStep, choose_second
+from highway_srl.rules.pipeline import (
+    PROFILES,
+    ControlProfile,
+    ModelStep,
+    SafetyLayer,
+    SafetyStep,
+    choose_second,
+    control_profile,
+)
 from highway_srl.rules.reward_machine import (
     COLLISION_REWARD,
     D_ACC_M,
@@ -69,7 +77,7 @@ __all__ = [
     "IdMapping", "LaneModel", "Vehicles", "id_mapping", "default_virtual_vehicles", "fill_defaults",
     "near_boundary", "rule_mapping", "target_lane_local", "target_speed",
     "OBS_NAMES", "build_observation", "observation_ranges",
-    "SafetyLayer", "SafetyStep", "ModelStep", "choose_second",
+    "SafetyLayer", "SafetyStep", "ModelStep", "choose_second", "ControlProfile", "PROFILES", "control_profile",
     "Estimate", "deployment_step_reward", "deployment_episode_reward", "average_speed",
     "collision_free_rate", "success_rate", "wilson_interval", "mean_interval",
 ]

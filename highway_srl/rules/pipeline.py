@@ -59,6 +59,39 @@ FRONT_SLOTS = (True, True, False, False)  # SV1, SV2 ahead; SV3, SV4 behind
 STANDSTILL_GAP_M = 1.0  # margin subtracted from every bumper gap before the SD rule (docs/paper-notes.md)
 
 
+@dataclass(frozen=True)
+class ControlProfile:
+    """Which of our safety additions to the rule and control mappings (Eqs. 31-35) are on.
+
+    abort_unsafe_change: a held lane change is given up (T* = C_ID) when R*2 ∧ R*4 fail; brake_while_changing:
+    LaneChange behind an unsafe SV1 (R*1 = 0) brakes as Slower; finish_in_window: a change is started or held
+    only if it ends before the road's change window closes; straddle_grouping: an ego near the boundary
+    occupies both lanes (R*1 ∧ R*2, R*3 ∧ R*4); standstill_gap_m: margin taken off every bumper gap before
+    the SD rule. docs/paper-notes.md, "Profiles: paper vs safe", gives each with the crash that motivated it.
+    """
+
+    abort_unsafe_change: bool
+    brake_while_changing: bool
+    finish_in_window: bool
+    straddle_grouping: bool
+    standstill_gap_m: float
+
+
+# paper: Eqs. 31-35 as printed plus only the readings they cannot work without (holding a change under way);
+# safe: the project's additions on top, each justified by a measured crash.
+PROFILES: dict[str, ControlProfile] = {
+    "paper": ControlProfile(False, False, False, False, 0.0),
+    "safe": ControlProfile(True, True, True, True, STANDSTILL_GAP_M),
+}
+
+
+def control_profile(name: str) -> ControlProfile:
+    """The profile called name ("paper" or "safe"); ValueError naming the choices otherwise."""
+    if name not in PROFILES:
+        raise ValueError(f"unknown profile {name!r}; choose one of {', '.join(PROFILES)}")
+    return PROFILES[name]
+
+
 @dataclass
 class ModelStep:
     """One two-lane model's view of the step, all (B, ...): obs (B, 37) float32; mask (B, 4) bool in
@@ -125,40 +158,49 @@ def choose_second(q_primary: torch.Tensor, q_second: torch.Tensor, two_models: t
 class SafetyLayer:
     """Batched rule machinery for one road (see the module docstring for the call order).
 
+    profile: "safe" (today's default: our safety additions on) or "paper" (Eqs. 31-35 as printed plus the
+    hold below); see ControlProfile. Each addition can still be set on its own (None: the profile's value).
     literal_sd: use the printed Eqs. 21-27 instead of the sound safe distance; grouped_rule_mapping: the
     Eq. 32 reading (see mappings.rule_mapping); hold_lane_change: Faster/Idle/Slower keep the previous
-    target lane ("the lateral plan remains unchanged") instead of the literal Eq. 34 T* = C_ID;
-    finish_in_window: a lane change is started or held only if it can end before the road's change window
-    closes (mappings.change_fits_window).
+    target lane ("the lateral plan remains unchanged") instead of the literal Eq. 34 T* = C_ID, in both
+    profiles (without it no lane change completes); abort_unsafe_change: the held change is given up when
+    its target turns unsafe; finish_in_window: a lane change is started or held only if it can end before
+    the road's change window closes (mappings.change_fits_window).
     """
 
     def __init__(
         self,
         road: Road,
         *,
+        profile: str = "safe",
         literal_sd: bool = False,
         d_acc_m: float = D_ACC_M,
         eps_s_m: float = EPS_S_M,
         grouped_rule_mapping: bool = True,
         hold_lane_change: bool = True,
-        brake_while_changing: bool = True,
-        finish_in_window: bool = True,
-        standstill_gap_m: float = STANDSTILL_GAP_M,
-        straddle_grouping: bool = True,
+        abort_unsafe_change: bool | None = None,
+        brake_while_changing: bool | None = None,
+        finish_in_window: bool | None = None,
+        standstill_gap_m: float | None = None,
+        straddle_grouping: bool | None = None,
         reaction_s: float = DT_S,
         ego_brake_mps2: float = EGO_BRAKE_MAX_MPS2,
         sv_brake_mps2: float = SV_BRAKE_MAX_MPS2,
     ):
+        prof = control_profile(profile)
+        pick = lambda value, default: default if value is None else value  # noqa: E731
         self.road = road
+        self.profile = profile
         self.literal_sd = literal_sd
         self.d_acc_m = d_acc_m
         self.eps_s_m = eps_s_m
         self.grouped = grouped_rule_mapping
         self.hold_lane_change = hold_lane_change
-        self.brake_while_changing = brake_while_changing
-        self.finish_in_window = finish_in_window
-        self.standstill_gap_m = standstill_gap_m
-        self.straddle_grouping = straddle_grouping
+        self.abort_unsafe_change = pick(abort_unsafe_change, prof.abort_unsafe_change)
+        self.brake_while_changing = pick(brake_while_changing, prof.brake_while_changing)
+        self.finish_in_window = pick(finish_in_window, prof.finish_in_window)
+        self.standstill_gap_m = pick(standstill_gap_m, prof.standstill_gap_m)
+        self.straddle_grouping = pick(straddle_grouping, prof.straddle_grouping)
         self.reaction_s, self.ego_brake, self.sv_brake = reaction_s, ego_brake_mps2, sv_brake_mps2
         self.rm = highway_reward_machine()
         self.target_lane: torch.Tensor | None = None  # (B,) long global T*; -1: not yet known
@@ -291,11 +333,13 @@ class SafetyLayer:
         dx4 = snap.ego_x - veh.x[:, 3]
         previous = None
         if self.hold_lane_change:
-            # hold a lane change under way only while the target lane is still safe (R*2 ∧ R*4); otherwise
-            # Faster/Idle/Slower fall back to the literal Eq. 34 (T* = C_ID) and the change is aborted
+            # "the lateral plan remains unchanged": Faster/Idle/Slower keep the target of a change under way
             previous = (self.target_lane - m.lanes.base_lane).clamp(0, 1)
-            still_safe = m.r_star[:, 1] & m.r_star[:, 3]
-            previous = torch.where(still_safe, previous, m.lanes.c_id.long())
+            if self.abort_unsafe_change:
+                # ours: held only while the target lane is still safe (R*2 ∧ R*4); otherwise Faster/Idle/
+                # Slower fall back to the literal Eq. 34 (T* = C_ID) and the change is aborted
+                still_safe = m.r_star[:, 1] & m.r_star[:, 3]
+                previous = torch.where(still_safe, previous, m.lanes.c_id.long())
         t_local = target_lane_local(
             action, m.lanes.c_id, m.m_l_ego, m.r_star[:, 2], m.r_star[:, 3], dx3, dx4, previous_target=previous
         )

@@ -33,7 +33,7 @@ import torch
 from highway_srl.constants import D_ML_M, DT_S, EGO_BRAKE_MAX_MPS2, SV_BRAKE_MAX_MPS2, VEHICLE_LENGTH_M
 from highway_srl.rules.mappings import NO_LANE, LaneModel, crossing_allowed, fill_defaults, lane_exists, target_speed
 from highway_srl.rules.observation import OBS_NAMES, build_observation, ego_progress_feature
-from highway_srl.rules.pipeline import FRONT_SLOTS, STANDSTILL_GAP_M, ModelStep, SafetyLayer, SafetyStep, _where_tree
+from highway_srl.rules.pipeline import FRONT_SLOTS, ModelStep, SafetyLayer, SafetyStep, _where_tree, control_profile
 from highway_srl.rules.reward_machine import D_ACC_M, desired_speed, reward_machine_state, rm_reward
 from highway_srl.rules.safe_actions import IDLE, LANE_CHANGE, safe_action_mask_from
 from highway_srl.rules.safe_distance import rule_indicator
@@ -71,19 +71,23 @@ class RawSafetyLayer:
         *,
         five_actions: bool = True,
         hold_lane_change: bool = False,
+        profile: str = "safe",
         literal_sd: bool = False,
         d_acc_m: float = D_ACC_M,
-        standstill_gap_m: float = STANDSTILL_GAP_M,
+        standstill_gap_m: float | None = None,
         reaction_s: float = DT_S,
         ego_brake_mps2: float = EGO_BRAKE_MAX_MPS2,
         sv_brake_mps2: float = SV_BRAKE_MAX_MPS2,
     ):
+        # of the profile's additions only the standstill margin exists in the raw view (no mappings to extend)
+        if standstill_gap_m is None:
+            standstill_gap_m = control_profile(profile).standstill_gap_m
         self.road = road
         self.five_actions = five_actions
         self.hold_lane_change = hold_lane_change
         self.literal_sd, self.d_acc_m, self.standstill_gap_m = literal_sd, d_acc_m, standstill_gap_m
         self.reaction_s, self.ego_brake, self.sv_brake = reaction_s, ego_brake_mps2, sv_brake_mps2
-        self.mapped = SafetyLayer(road, literal_sd=literal_sd, d_acc_m=d_acc_m, standstill_gap_m=standstill_gap_m,
+        self.mapped = SafetyLayer(road, profile=profile, literal_sd=literal_sd, d_acc_m=d_acc_m, standstill_gap_m=standstill_gap_m,
                                   reaction_s=reaction_s, ego_brake_mps2=ego_brake_mps2, sv_brake_mps2=sv_brake_mps2)
         self._target: torch.Tensor | None = None
         self.last: SafetyStep | None = None

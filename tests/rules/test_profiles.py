@@ -1,0 +1,172 @@
+"""Control profiles of the SafetyLayer (docs/paper-notes.md, "Profiles: paper vs safe").
+
+`paper` = Eqs. 31-35 as printed plus the hold of a lane change under way; `safe` = today's behaviour with
+our five additions. One crafted situation per addition where the two profiles differ exactly as documented,
+and a golden test of Eqs. 31-35 under `paper`.
+"""
+
+import pytest
+import torch
+
+from highway_srl.rules import PROFILES, RM_STATES, SafetyLayer, control_profile
+from highway_srl.rules.raw import RawSafetyLayer
+from highway_srl.rules.safe_actions import FASTER, IDLE, LANE_CHANGE, SLOWER
+from highway_srl.sim.road import make_road
+
+W = 3.5
+
+
+def layers(road, **kwargs):
+    return {name: SafetyLayer(road, profile=name, **kwargs) for name in ("paper", "safe")}
+
+
+def test_safe_is_the_default_profile_and_equals_the_previous_defaults():
+    layer = SafetyLayer(make_road("two-lane"))
+    assert layer.profile == "safe"
+    assert (layer.abort_unsafe_change, layer.brake_while_changing, layer.finish_in_window, layer.straddle_grouping,
+            layer.standstill_gap_m) == (True, True, True, True, 1.0)
+    paper = SafetyLayer(make_road("two-lane"), profile="paper")
+    assert (paper.abort_unsafe_change, paper.brake_while_changing, paper.finish_in_window, paper.straddle_grouping,
+            paper.standstill_gap_m) == (False, False, False, False, 0.0)
+    assert paper.hold_lane_change and layer.hold_lane_change  # both hold a change under way
+    assert set(PROFILES) == {"paper", "safe"}
+
+
+def test_an_explicit_option_overrides_the_profile():
+    layer = SafetyLayer(make_road("two-lane"), profile="paper", brake_while_changing=True, standstill_gap_m=0.5)
+    assert layer.brake_while_changing and layer.standstill_gap_m == 0.5 and not layer.finish_in_window
+
+
+def test_unknown_profile_is_a_value_error_naming_the_choices():
+    with pytest.raises(ValueError, match="paper, safe"):
+        SafetyLayer(make_road("two-lane"), profile="strict")
+    with pytest.raises(ValueError, match="paper, safe"):
+        control_profile("")
+
+
+def test_raw_layer_takes_the_profiles_standstill_margin():
+    road = make_road("two-lane")
+    assert RawSafetyLayer(road).standstill_gap_m == 1.0
+    assert RawSafetyLayer(road, profile="paper").standstill_gap_m == 0.0
+    assert RawSafetyLayer(road, profile="paper").mapped.profile == "paper"
+
+
+# ----------------------------------------------------------------------------- one situation per addition
+def test_held_change_is_aborted_when_the_target_turns_unsafe_only_under_safe(hand_world):
+    """abort_unsafe_change: LaneChange, then an SV appears 1 m behind the ego's rear bumper in the target lane
+    at 12 m/s (R4 = 0); Idle holds the change under paper and returns to C_ID under safe."""
+    road = make_road("two-lane")
+    for name, expected in (("paper", 1), ("safe", 0)):
+        world = hand_world(road, [{"ego": (0.0, 0.0, 8.0, 0.0), "svs": []}])
+        layer = SafetyLayer(road, profile=name)
+        layer.observe(world)
+        assert layer.act(torch.tensor([LANE_CHANGE]))[0].tolist() == [1]
+        world.scenes[0]["svs"].append((-6.0, W, 12.0, 0.0))
+        step = layer.observe(world)
+        assert step.primary.r_star[0, 3].item() is False
+        assert layer.act(torch.tensor([IDLE]))[0].tolist() == [expected], name
+
+
+def test_lane_change_behind_an_unsafe_leader_brakes_only_under_safe(hand_world):
+    """brake_while_changing: SV1 3 m ahead at 5 m/s, ego 10 m/s (R*1 = 0, Table 1 row 9 allows LaneChange):
+    paper keeps the speed (LaneChange is not a speed action), safe brakes as Slower (10 - 6 x 0.125)."""
+    road = make_road("two-lane")
+    scene = [{"ego": (0.0, 0.0, 10.0, 0.0), "svs": [(8.0, 0.0, 5.0, 0.0)]}]
+    for name, layer in layers(road).items():
+        layer.observe(hand_world(road, scene))
+        lane, speed = layer.act(torch.tensor([LANE_CHANGE]))
+        assert lane.tolist() == [1]
+        assert speed.tolist() == ([10.0] if name == "paper" else [9.25]), name
+
+
+def test_change_into_the_closing_window_starts_only_under_paper(hand_world):
+    """finish_in_window: 15 m before the exit's gore at 8 m/s (a change needs 24 m): paper starts it, safe
+    keeps the lane."""
+    road = make_road("exit")
+    x2 = road.zones["diverging"][1]
+    scene = [{"ego": (x2 - 15.0, W, 8.0, 0.0), "svs": []}]
+    for name, layer in layers(road).items():
+        layer.observe(hand_world(road, scene))
+        assert layer.act(torch.tensor([LANE_CHANGE]))[0].tolist() == ([2] if name == "paper" else [1]), name
+
+
+def test_ego_near_the_boundary_occupies_both_lanes_only_under_safe(hand_world):
+    """straddle_grouping: ego 0.25 m from the boundary (m*_L,EV = 1), a standing car 10 m (bumper) ahead in
+    the other lane (R2 = 0), nothing in its own lane (R1 = 1): paper allows Faster (R*1 = R'1 = 1),
+    safe does not (R*1 = R1 ∧ R2 = 0)."""
+    road = make_road("two-lane")
+    scene = [{"ego": (0.0, 1.5, 10.0, 0.0), "svs": [(15.0, W, 0.0, 0.0)]}]
+    for name, layer in layers(road).items():
+        p = layer.observe(hand_world(road, scene)).primary
+        assert p.m_l_ego.tolist() == [True] and p.r_sv[0].tolist() == [True, False, True, True]
+        assert p.r_star[0, 0].item() is (name == "paper"), name
+        assert p.mask[0, FASTER].item() is (name == "paper"), name
+
+
+def test_standstill_margin_holds_a_standing_ego_half_a_metre_behind_a_standing_car_only_under_safe(hand_world):
+    """standstill_gap_m: both stand, bumper gap 0.5 m. The SD rule (point masses, Faster allowed during δt:
+    ½ 3.5 x 0.125² = 2.7 cm) says safe; with the 1 m margin the gap is -0.5 m, unsafe."""
+    road = make_road("two-lane")
+    scene = [{"ego": (0.0, 0.0, 0.0, 0.0), "svs": [(5.5, 0.0, 0.0, 0.0)]}]
+    for name, layer in layers(road).items():
+        p = layer.observe(hand_world(road, scene)).primary
+        assert p.r_sv[0, 0].item() is (name == "paper"), name
+        assert p.mask[0, FASTER].item() is (name == "paper"), name
+
+
+# ----------------------------------------------------------------------------- Eqs. 31-35 golden, paper
+def _rear(dx, lane, v):
+    return (dx, lane * W, v, 0.0)
+
+
+SAFE_BEHIND, UNSAFE_BEHIND = -45.0, -6.0  # 40 m bumper gap at 8 m/s / 1 m gap at 12 m/s behind an 8 m/s ego
+
+
+def test_eqs_31_to_35_golden_under_the_paper_profile(hand_world):
+    """Two-lane, ego in lane 0 (C_ID = 0) at 8 m/s, heading 0. Rows: (ego y, SVs, action) -> m*_L,EV (Eq. 31),
+    R*_SV3, R*_SV4 (Eq. 32), T*_ID (Eqs. 34-35), target speed (§3.1 Δv_A = 3.5 δt, Δv_D = 6 δt)."""
+    road = make_road("two-lane")
+    rows = [
+        # Eq. 34: centred (m*_L = 0), LaneChange -> 1 - C_ID whatever the rear rules say
+        (0.0, [_rear(UNSAFE_BEHIND, 0, 12.0), _rear(UNSAFE_BEHIND, 1, 12.0)], LANE_CHANGE, False, (0, 0), 1, 8.0),
+        # Eq. 34: Faster / Slower -> C_ID
+        (0.0, [], FASTER, False, (1, 1), 0, 8.4375),
+        (0.0, [], SLOWER, False, (1, 1), 0, 7.25),
+        # Eq. 31: centre 1.5 m from the line at y = 1.75: the corner clause (0.5 m) -> m*_L = 1
+        # Eq. 35 row 1: ¬R*3 ∧ R*4 -> 1 - C_ID
+        (1.5, [_rear(UNSAFE_BEHIND, 0, 12.0), _rear(SAFE_BEHIND, 1, 8.0)], LANE_CHANGE, True, (0, 1), 1, 8.0),
+        # Eq. 35 row 2: R*3 ∧ ¬R*4 -> C_ID
+        (1.5, [_rear(SAFE_BEHIND, 0, 8.0), _rear(UNSAFE_BEHIND, 1, 12.0)], LANE_CHANGE, True, (1, 0), 0, 8.0),
+        # Eq. 35 rows 3-4: both unsafe; Δx3 = 6 > Δx4 = 5.5 -> C_ID; Δx3 = 5.5 < Δx4 = 6 -> 1 - C_ID
+        (1.5, [_rear(-6.0, 0, 12.0), _rear(-5.5, 1, 12.0)], LANE_CHANGE, True, (0, 0), 0, 8.0),
+        (1.5, [_rear(-5.5, 0, 12.0), _rear(-6.0, 1, 12.0)], LANE_CHANGE, True, (0, 0), 1, 8.0),
+        # Eq. 35 "otherwise": both safe -> C_ID
+        (1.5, [_rear(SAFE_BEHIND, 0, 8.0), _rear(SAFE_BEHIND, 1, 8.0)], LANE_CHANGE, True, (1, 1), 0, 8.0),
+        # Eq. 31: 1.6 m from the line, corners 0.6 m: neither clause -> m*_L = 0, Eq. 34 applies
+        (0.15, [_rear(SAFE_BEHIND, 0, 8.0), _rear(UNSAFE_BEHIND, 1, 12.0)], LANE_CHANGE, False, (1, 0), 1, 8.0),
+        # Eq. 32 R': ego near the boundary, SV4 slower 8 m behind (R4 = 1) but SV2 unsafe and |Δx4| < ε_s:
+        # R'4 = 0, so R*4 = 0 -> Eq. 35 row 2 -> C_ID
+        (1.5, [(6.0, W, 0.0, 0.0), _rear(-8.0, 1, 4.0)], LANE_CHANGE, True, (1, 0), 0, 8.0),
+    ]
+    scenes = [{"ego": (0.0, y, 8.0, 0.0), "svs": svs} for y, svs, *_ in rows]
+    layer = SafetyLayer(road, profile="paper")
+    p = layer.observe(hand_world(road, scenes)).primary
+    lane, speed = layer.act(torch.tensor([r[2] for r in rows]))
+    for b, (_, _, _, m_l, (r3, r4), t_id, v) in enumerate(rows):
+        assert p.m_l_ego[b].item() is m_l, b
+        assert p.r_star[b, 2:].tolist() == [bool(r3), bool(r4)], b
+        assert int(lane[b]) == t_id, b
+        assert float(speed[b]) == pytest.approx(v), b
+    assert p.r_sv[9, 3].item() is True  # the last row: R4 itself holds, only R' clears it
+
+
+def test_eq32_grouping_of_a_front_vehicle_near_the_boundary_under_paper(hand_world):
+    """Eq. 32: SV2 cutting in over the boundary (y = 2.0, its corner 0.25 m from the line) is near it, so
+    R*1 = R*2 = R'1 ∧ R'2 (a standing SV2 10 m ahead makes R2 = 0, and so Faster unsafe), also under paper."""
+    road = make_road("two-lane")
+    scene = [{"ego": (0.0, 0.0, 10.0, 0.0), "svs": [(15.0, 2.0, 0.0, 0.0)]}]
+    world = hand_world(road, scene)
+    p = SafetyLayer(road, profile="paper").observe(world).primary
+    assert p.m_l_ego.tolist() == [False] and p.r_sv[0, :2].tolist() == [True, False]
+    assert p.r_star[0, :2].tolist() == [False, False] and p.mask[0, FASTER].item() is False
+    assert int(p.rm_state[0]) == RM_STATES.index("u2")
