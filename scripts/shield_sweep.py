@@ -2,6 +2,7 @@
 and level, nominal and adversarial: collision-free rate and lane changes per episode. Prints a Markdown table.
 
     python scripts/shield_sweep.py --episodes 256 --levels A,C,F
+    python scripts/shield_sweep.py --levels C --profile safe --set straddle_grouping=false   # one addition off
 """
 
 from __future__ import annotations
@@ -17,9 +18,9 @@ from highway_srl.rules import SafetyLayer
 from highway_srl.sim import World
 
 
-def sweep(scenario: str, level: str, adversarial: bool, episodes: int, seed: int) -> dict:
+def sweep(scenario: str, level: str, adversarial: bool, episodes: int, seed: int, **layer_options) -> dict:
     world = World(scenario, level, adversarial, episodes, "cpu", seed)
-    layer = SafetyLayer(world.road)
+    layer = SafetyLayer(world.road, **layer_options)
     gen = torch.Generator().manual_seed(seed)
     step = layer.observe(world)
     alive = torch.ones(episodes, dtype=torch.bool)
@@ -44,14 +45,25 @@ def main() -> None:
     p.add_argument("--episodes", type=int, default=256)
     p.add_argument("--levels", default="A,C,F")
     p.add_argument("--seed", type=int, default=7)
+    p.add_argument("--scenarios", default=",".join(SCENARIOS))
+    p.add_argument("--modes", default="nominal,adversarial")
+    p.add_argument("--profile", default="safe", help="SafetyLayer profile: paper or safe")
+    p.add_argument("--set", action="append", default=[], metavar="OPTION=VALUE",
+                   help="a SafetyLayer option over the profile, e.g. finish_in_window=false, standstill_gap_m=0")
     args = p.parse_args()
+    options = {"profile": args.profile}
+    for item in args.set:
+        name, _, value = item.partition("=")
+        options[name] = {"true": True, "false": False}.get(value.lower(), None)
+        if options[name] is None:
+            options[name] = float(value)
     t0 = time.time()
     print("| scenario | mode | level | episodes | collision-free | episodes with a lane change |")
     print("|---|---|---|---|---|---|")
-    for scenario in SCENARIOS:
-        for adversarial in (False, True):
+    for scenario in args.scenarios.split(","):
+        for adversarial in [m == "adversarial" for m in args.modes.split(",")]:
             for level in args.levels.split(","):
-                r = sweep(scenario, level, adversarial, args.episodes, args.seed)
+                r = sweep(scenario, level, adversarial, args.episodes, args.seed, **options)
                 mode = "adversarial" if adversarial else "nominal"
                 print(f"| {scenario} | {mode} | {level} | {args.episodes} | {r['collision_free']:.1%} | {r['changed_lane']:.0%} |",
                       flush=True)
