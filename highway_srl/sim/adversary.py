@@ -1,7 +1,10 @@
 """Adversarial traffic (group 3 of the paper): SVs that cut into the ego's lane.
 
-Today's variant is `safe_distance_cut_ins`: a cut-in triggered by the gap to the ego falling below the
-ego's kinematic safe distance plus a per-SV offset. Another adversary is a second function next to it.
+Two variants (World(adversary=...)): "mild", `safe_distance_cut_ins` (ours: a cut-in ahead of the ego,
+with room, triggered by the gap falling below the ego's kinematic safe distance plus a per-SV offset), and
+"paper", `paper_cut_ins` (§4.3 as printed: the bumper gap below the sampled |d_trig - d_SVi| in {0, 5, 10} m,
+ahead, alongside or behind, whatever the gaps). Both count their draws and cut-ins per episode in the world
+state (adv_triggers, adv_cut_ins). docs/paper-notes.md, "The paper's adversary", gives the readings.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from highway_srl.sim.traffic_model import Neighbours
 # Group 3 reading: cut-ins only by SVs wholly ahead of the ego (False) or also alongside it (True)
 ADVERSARIAL_ALONGSIDE = False
 S_ADV = 20  # random stream of the trigger draw (spawn uses 0-7, recycling 21 and 23)
+S_PAPER_ADV = 24  # random stream of the paper adversary's draws
 
 
 def kinematic_safe_distance(v_follower: torch.Tensor, v_leader: torch.Tensor) -> torch.Tensor:
@@ -67,9 +71,43 @@ def safe_distance_cut_ins(s: WorldState, tables: LaneTables, nb: Neighbours) -> 
     bb, ii, el = bb[trig], ii[trig], el[trig]
     if bb.numel() == 0:
         return
-    u = rng.uniform_at(rng.key(s.seed[bb], s.episode[bb], s.t[bb], S_ADV), ii)
+    _draw_and_force(s, bb, ii, el, S_ADV)
+
+
+def _draw_and_force(s: WorldState, bb: torch.Tensor, ii: torch.Tensor, lane: torch.Tensor, stream: int) -> None:
+    """The trigger of SVs (env bb, vehicle ii), all (M,): one draw each, marked used; with probability ABP
+    the SV's target becomes `lane` at once, forced (MOBIL's checks and the abort skipped until it is
+    centred). Adds to the episode's counters adv_triggers and adv_cut_ins."""
+    u = rng.uniform_at(rng.key(s.seed[bb], s.episode[bb], s.t[bb], stream), ii)
     fire = u < s.adversarial_prob[bb, ii]
     s.trigger_used[bb, ii] = True
     s.forced[bb[fire], ii[fire]] = True
-    s.target_lane[bb[fire], ii[fire]] = el[fire]
+    s.target_lane[bb[fire], ii[fire]] = lane[fire]
+    s.adv_triggers.index_add_(0, bb, torch.ones_like(bb))
+    s.adv_cut_ins.index_add_(0, bb[fire], torch.ones_like(bb[fire]))
+
+
+def paper_cut_ins(s: WorldState, tables: LaneTables) -> None:
+    """Group 3 as printed (§4.3): "When the distance between the EV and SV_i falls below |d_trig - d_SVi|,
+    the SV initiates a forced lane change with probability ABP ... at most once per episode."
+
+    Every SV of a style with ABP > 0 in a lane next to the ego's, keeping its lane, whose bumper gap to the
+    ego |x_SV - x_EV| - L (negative side by side) is below its threshold trigger_offset in {0, 5, 10} m
+    (the sampled |d_trig - d_SVi|), draws once per episode and, with probability ABP, changes into the ego's
+    lane whatever the gaps: ahead, alongside or behind (a swerve into a car beside it cannot be avoided by
+    any policy). It must be allowed to cross there (LaneTables.can_change) and never cuts into a lane that
+    ends (the merge's on-ramp). Runs on the positions at the start of the step, before the traffic moves.
+    """
+    ego_lane, ego_x = s.lane[:, :1], s.x[:, :1]
+    cand = ((s.lane - ego_lane).abs() == 1) & ~s.trigger_used & (s.adversarial_prob > 0)
+    cand &= (s.target_lane == s.lane) & ~s.forced
+    cand &= (s.x - ego_x).abs() - VEHICLE_LENGTH_M < s.trigger_offset
+    cand[:, 0] = False
+    bb, ii = cand.nonzero(as_tuple=True)
+    if bb.numel() == 0:
+        return
+    el = ego_lane[bb, 0]
+    keep = tables.can_change(s.x[bb, ii], s.lane[bb, ii], el) & ~torch.isfinite(tables.drop_end_m[el])
+    if bool(keep.any()):
+        _draw_and_force(s, bb[keep], ii[keep], el[keep], S_PAPER_ADV)
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 import torch
 
@@ -37,6 +37,16 @@ class WorldState:
     merged: torch.Tensor  # bool, latched stage flags
     exit1: torch.Tensor
     exit2: torch.Tensor
+    # adversary counters of this episode (B,) long: triggers evaluated, forced cut-ins started; zero at
+    # spawn (filled in by __post_init__, so states saved before they existed still load)
+    adv_triggers: torch.Tensor | None = field(default=None)
+    adv_cut_ins: torch.Tensor | None = field(default=None)
+
+    def __post_init__(self) -> None:
+        if self.adv_triggers is None:
+            self.adv_triggers = torch.zeros_like(self.t)
+        if self.adv_cut_ins is None:
+            self.adv_cut_ins = torch.zeros_like(self.t)
 
     def index_put(self, idx: torch.Tensor, other: "WorldState") -> None:
         """Overwrite envs idx (K,) with the K envs of other, in place."""

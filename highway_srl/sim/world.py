@@ -19,6 +19,7 @@ from highway_srl.constants import (
 )
 from highway_srl.scenarios import scenario_spec
 from highway_srl.sim import dynamics
+from highway_srl.sim.adversary import paper_cut_ins
 from highway_srl.sim.contacts import ego_collision, stage_events
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.recycle import recycle
@@ -28,6 +29,7 @@ from highway_srl.sim.spawn import Layout, make_layout, spawn
 from highway_srl.sim.state import WorldState
 
 MAX_VEHICLES = 64
+ADVERSARIES = ("mild", "paper")  # group 3: adversary.safe_distance_cut_ins, adversary.paper_cut_ins
 
 
 @dataclass
@@ -60,7 +62,9 @@ class World:
     """B independent episodes of one scenario and traffic level.
 
     seed: an int (env b gets seed + b) or a sequence of B ints. Env b's episodes depend only on its own
-    seed, not on the batch size or the device's other envs.
+    seed, not on the batch size or the device's other envs. adversary: which group-3 cut-ins run when
+    adversarial is True, "mild" (ours: ahead of the ego, with room, beyond its safe distance) or "paper"
+    (§4.3 as printed); both in sim/adversary.py.
     """
 
     def __init__(
@@ -74,6 +78,7 @@ class World:
         style: str | None = None,
         num_vehicles: int | None = None,
         max_steps: int = EPISODE_STEPS,
+        adversary: str = "mild",
     ):
         scenario_spec(scenario)  # raises the one-line error naming the scenarios
         if traffic not in TRAFFIC_LEVELS:
@@ -88,6 +93,9 @@ class World:
             raise ValueError(f"num_vehicles must be between 1 and {MAX_VEHICLES - 1}, got {m!r}")
         if not isinstance(max_steps, int) or max_steps < 1:
             raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+        if adversary not in ADVERSARIES:
+            raise ValueError(f"unknown adversary {adversary!r}; choose one of {', '.join(ADVERSARIES)}")
+        self.adversary = adversary
         self.device = check_device(device)
         self.scenario, self.traffic, self.adversarial = scenario, traffic, bool(adversarial)
         self.road: Road = make_road(scenario)
@@ -128,8 +136,10 @@ class World:
         s = self.state
         target_lane = torch.as_tensor(target_lane, device=self.device).long().reshape(self.num_envs)
         target_speed = torch.as_tensor(target_speed, device=self.device, dtype=torch.float32).reshape(self.num_envs)
+        if self.adversarial and self.adversary == "paper":
+            paper_cut_ins(s, self._lane_tables)
         sv_collisions, neighbours = dynamics.advance(s, self.road, self._lane_tables, self.layout, target_lane,
-                                                     target_speed, self.adversarial)
+                                                     target_speed, self.adversarial and self.adversary == "mild")
         collision = ego_collision(s, self.road, self._lane_tables, neighbours)
         success, failure = stage_events(s, self.road)
         recycle(s, self.road, self.layout, self.level)
@@ -146,6 +156,12 @@ class World:
     @property
     def ego_speed(self) -> torch.Tensor:
         return self.state.v[:, 0]
+
+    def adversary_counts(self) -> dict[str, torch.Tensor]:
+        """Group-3 counters of the current episodes (B,) long: triggers (trigger draws made) and cut_ins
+        (forced lane changes started); zero in nominal traffic, reset with each episode."""
+        s = self.state
+        return {"triggers": s.adv_triggers.clone(), "cut_ins": s.adv_cut_ins.clone()}
 
     def stage_flags(self) -> dict[str, torch.Tensor]:
         """Latched task stages of the current episodes (B,) bool: merged, exit1, exit2."""
