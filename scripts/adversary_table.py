@@ -78,7 +78,7 @@ def main() -> None:
             r = adversary_stats(scenario, args.level, adversary, args.episodes, args.profile, args.window_s)
             share = "–" if not r["cut_ins_total"] else f"{r['collision_share']:.0%} ({r['cut_in_collisions']} of {r['cut_ins_total']})"
             print(f"| {scenario} | {adversary} | {r['triggers']:.2f} | {r['cut_ins']:.2f} | {share} | "
-                  f"{r['C_r']:.0%} ({r['collisions']} collisions) |", flush=True)
+                  f"{r['C_r']:.0%} ({r['collisions']} of {args.episodes} collide) |", flush=True)
     print(f"\n{time.time() - t0:.0f} s")
 
 
