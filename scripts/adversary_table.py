@@ -15,7 +15,7 @@ import time
 
 import torch
 
-from highway_srl.agents.methods import make_method
+from highway_srl.agents.registry import make_method
 from highway_srl.constants import DT_S, SCENARIOS
 from highway_srl.experiments.evaluate import EVAL_SEED_BASE
 from highway_srl.rules import SafetyLayer

@@ -4,7 +4,7 @@ counters of triggers and cut-ins (docs/paper-notes.md, "The paper's adversary").
 import pytest
 import torch
 
-from highway_srl.agents.methods import make_method
+from highway_srl.agents.registry import make_method
 from highway_srl.constants import VEHICLE_LENGTH_M
 from highway_srl.rules import SafetyLayer
 from highway_srl.sim import World
