@@ -40,14 +40,13 @@ LAMBDA_INIT = 0.0
 LAMBDA_MAX = 100.0
 
 
-def speed_reward(scenario: str, next_obs: torch.Tensor, events, flags: dict) -> torch.Tensor:
+def speed_reward(scenario: str, next_obs: torch.Tensor, events, flags) -> torch.Tensor:
     """The speed/collision reward of RL, SR-RL, MP-RL, LM-RL, ET-RL and w/o RM, (B,): the paper's scenario
     reward (§4.3) with r_RM replaced by v/v_max: two-lane and multi-lane v/v_max; merge 0.7 v/v_max +
     0.3 r_merge; exit 0.5 v/v_max + 0.25 (r_exit,1 + r_exit,2); -320 on collision. At most 320 an episode,
     as the RM reward."""
     speed = next_obs[:, EGO_VX_COLUMN].clamp(0.0, 1.0)
-    return scenario_reward(scenario, speed, events.collision, r_merge=flags["merged"], r_exit1=flags["exit1"],
-                           r_exit2=flags["exit2"])
+    return scenario_reward(scenario, speed, events.collision, **flags.reward_inputs())
 
 
 def random_allowed(allowed: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:

@@ -55,8 +55,7 @@ class Method:
 
     def reward(self, scenario, nxt, events, flags) -> tuple[torch.Tensor, torch.Tensor | None]:
         """The paper's RM reward (§3.2, §4.3): r_RM, or its merge/exit mix; -320 on collision."""
-        r = scenario_reward(scenario, nxt.r_rm, events.collision, r_merge=flags["merged"],
-                            r_exit1=flags["exit1"], r_exit2=flags["exit2"])
+        r = scenario_reward(scenario, nxt.r_rm, events.collision, **flags.reward_inputs())
         return r, None
 
     def store(self, replay: ExpertReplay, d: Decision, obs, reward, next_obs, done, cost, share: bool = False):

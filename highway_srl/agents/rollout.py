@@ -12,6 +12,7 @@ import torch
 
 from highway_srl.agents.methods import Decision
 from highway_srl.rules.episode import EpisodeStats, advance
+from highway_srl.sim import StageFlags
 
 
 @dataclass
@@ -19,7 +20,7 @@ class Transition:
     decision: Decision
     events: object  # StepEvents of the world step
     view: object  # the rule layer's SafetyStep after the step (before any reset)
-    flags: dict  # the world's latched stage flags after the step
+    flags: StageFlags  # the world's latched stage flags after the step
     reward: torch.Tensor | None  # (B,) the method's training reward (train=True)
     cost: torch.Tensor | None  # (B,) its cost signal, for methods that use one
 

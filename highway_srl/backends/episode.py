@@ -39,7 +39,7 @@ from highway_srl.sim.snapshot import Snapshot
 from highway_srl.sim.spawn import Layout, make_layout, spawn
 from highway_srl.sim.state import WorldState
 from highway_srl.sim.traffic_model import CENTRED_M, find_neighbours
-from highway_srl.sim.world import StepEvents, ego_neighbours
+from highway_srl.sim.world import StageFlags, StepEvents, ego_neighbours
 
 FAR_M = 1.0e9  # x of a vehicle that is not on the road right now (never within d_max of anything)
 
@@ -241,9 +241,9 @@ class EpisodeCore:
         return StepEvents(b(collision), b(success), b(failure), b(terminated), b(truncated),
                           torch.tensor([int(sv_collisions)]))
 
-    def stage_flags(self) -> dict[str, torch.Tensor]:
+    def stage_flags(self) -> StageFlags:
         ws = self.ws
-        return {"merged": ws.merged.clone(), "exit1": ws.exit1.clone(), "exit2": ws.exit2.clone()}
+        return StageFlags(ws.merged.clone(), ws.exit1.clone(), ws.exit2.clone())
 
     # ------------------------------------------------------------------ the snapshot
     def snapshot(self, frame: Frame, current_lane, adjacent_lane, d_max: float = D_MAX_M) -> Snapshot:
@@ -289,7 +289,7 @@ class FrameQueries:
         """The current scene as a one-env WorldState (for renderings; read-only use)."""
         return self._core.sync(self._frame)
 
-    def stage_flags(self) -> dict[str, torch.Tensor]:
+    def stage_flags(self) -> StageFlags:
         return self._core.stage_flags()
 
     def neighbours(self, current_lane: torch.Tensor, adjacent_lane: torch.Tensor, d_max: float = D_MAX_M) -> Snapshot:

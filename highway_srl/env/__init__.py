@@ -27,6 +27,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from highway_srl import ENV_IDS
 from highway_srl.constants import EPISODE_STEPS
 from highway_srl.rules import ACTIONS, SafetyLayer, observation_ranges, scenario_reward
+from highway_srl.rules.episode import advance
 from highway_srl.sim import World
 
 RENDER_FPS = 8  # one frame per decision at the paper's 8 Hz
@@ -68,12 +69,9 @@ class _Batch:
         self.step_view = self.layer.observe(self.world)
 
     def act(self, action: torch.Tensor):
-        lane, speed = self.layer.act(action)
-        events = self.world.step(lane, speed)
-        view = self.layer.observe(self.world)
-        flags = self.world.stage_flags()
-        reward = scenario_reward(self.world.scenario, view.primary.r_rm, events.collision, r_merge=flags["merged"],
-                                 r_exit1=flags["exit1"], r_exit2=flags["exit2"])
+        """One step of the rollout (rules.episode.advance) and its training reward (B,)."""
+        events, view, flags = advance(self.world, self.layer, action)
+        reward = scenario_reward(self.world.scenario, view.primary.r_rm, events.collision, **flags.reward_inputs())
         self.step_view = view
         return reward, events, view
 

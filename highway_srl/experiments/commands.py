@@ -9,7 +9,8 @@ import os
 import sys
 from pathlib import Path
 
-from highway_srl.constants import SCENARIOS, TRAFFIC_LEVELS
+from highway_srl.constants import TRAFFIC_LEVELS
+from highway_srl.scenarios import check_scenario
 
 
 def levels(text: str) -> list[str]:
@@ -96,8 +97,7 @@ def train_config(args):
     from highway_srl.agents.trainer import TrainConfig
     from highway_srl.sim.world import check_device
 
-    if args.scenario not in SCENARIOS:
-        raise ValueError(f"unknown scenario {args.scenario!r}; choose one of {', '.join(SCENARIOS)}")
+    check_scenario(args.scenario)
     if args.traffic not in TRAFFIC_LEVELS:
         raise ValueError(f"unknown traffic level {args.traffic!r}; choose one of {', '.join(TRAFFIC_LEVELS)}")
     check_device(args.device)

@@ -17,6 +17,7 @@ from highway_srl.experiments.policy import load_policy
 from highway_srl.experiments.runs import provenance, write_json
 from highway_srl.rules import SafetyLayer, collision_free_rate, mean_interval, success_rate
 from highway_srl.rules.episode import EpisodeStats
+from highway_srl.scenarios import scenario_spec
 from highway_srl.sim import World
 
 EVAL_SEED_BASE = 1_000_000_000  # evaluation episodes never reuse a training seed
@@ -54,7 +55,7 @@ def summarise(results: dict[str, torch.Tensor], scenario: str) -> dict:
         "avg_speed": asdict(mean_interval(results["avg_speed"])),
         "R_r": asdict(mean_interval(results["deploy_reward"])),
     }
-    if scenario in ("merge", "exit"):
+    if scenario_spec(scenario).reports_success:
         out["R_s"] = asdict(success_rate(results["success"]))
     return out
 

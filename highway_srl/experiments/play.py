@@ -215,8 +215,7 @@ def _drive_episode(pygame, world, layer, screen, keys, clock, fps, on_tick) -> d
         action = keys.action()
         events, step, flags = advance(world, layer, torch.tensor([action]))
         mapped = layer.mapped.last.primary  # the paper's view: the reward and R_r every method is scored by
-        reward = scenario_reward(scenario, mapped.r_rm, events.collision, r_merge=flags["merged"],
-                                 r_exit1=flags["exit1"], r_exit2=flags["exit2"])
+        reward = scenario_reward(scenario, mapped.r_rm, events.collision, **flags.reward_inputs())
         stats.add(events, flags, step.primary, world.ego_speed, reward)
         collided = bool(stats.collision[0])
         screen.draw(world, [f"t {(t + 1) * DT_S:5.1f} s   speed {float(world.ego_speed[0]):4.1f} m/s   "

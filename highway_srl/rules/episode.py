@@ -24,6 +24,9 @@ from dataclasses import dataclass
 import torch
 
 from highway_srl.rules.metrics import deployment_step_reward
+from highway_srl.scenarios import scenario_spec
+from highway_srl.sim import StageFlags
+
 
 def advance(world, layer, action: torch.Tensor, use_second: torch.Tensor | None = None):
     """act -> world step -> observe: the action (B,) through the rule layer's control mapping, one world
@@ -63,20 +66,20 @@ class EpisodeStats:
     def __init__(self, scenario: str, num_envs: int, device: torch.device | str, max_steps: int,
                  dtype: torch.dtype = torch.float32):
         self.scenario, self.max_steps = scenario, max_steps
+        self.success_flag = scenario_spec(scenario).success_flag
         z = lambda dt=dtype: torch.zeros(num_envs, dtype=dt, device=device)  # noqa: E731
         self.ret, self.deploy, self.speed = z(), z(), z()
         self.length = z(torch.long)
         self.collision, self.success = z(torch.bool), z(torch.bool)
 
-    def add(self, events, flags: dict, view, ego_speed: torch.Tensor, reward: torch.Tensor | None = None,
+    def add(self, events, flags: StageFlags, view, ego_speed: torch.Tensor, reward: torch.Tensor | None = None,
             alive: torch.Tensor | None = None) -> None:
         """Account one step of every env: events (StepEvents), flags (the world's latched stage flags after
         the step), view (the rule layer's primary model step after the step: speed_ratio, r_star),
         ego_speed (B,) m/s, reward (B,) the training reward or None; alive (B,) bool: only these envs
         count this step (None: all)."""
-        deploy = deployment_step_reward(self.scenario, view.speed_ratio, r_star=view.r_star, r_merge=flags["merged"],
-                                        r_exit1=flags["exit1"], r_exit2=flags["exit2"])
-        success = events.success | flags["merged"] if self.scenario == "merge" else events.success
+        deploy = deployment_step_reward(self.scenario, view.speed_ratio, r_star=view.r_star, **flags.reward_inputs())
+        success = events.success if self.success_flag is None else events.success | getattr(flags, self.success_flag)
         collision = events.collision
         if alive is None:
             if reward is not None:

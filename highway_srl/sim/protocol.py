@@ -12,7 +12,7 @@ import torch
 
 from highway_srl.sim.road import Road
 from highway_srl.sim.snapshot import Snapshot
-from highway_srl.sim.world import StepEvents
+from highway_srl.sim.world import StageFlags, StepEvents
 
 
 class Backend(Protocol):
@@ -36,4 +36,4 @@ class Backend(Protocol):
     @property
     def ego_speed(self) -> torch.Tensor: ...
 
-    def stage_flags(self) -> dict[str, torch.Tensor]: ...
+    def stage_flags(self) -> StageFlags: ...

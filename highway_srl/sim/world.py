@@ -44,6 +44,21 @@ class StepEvents:
     sv_collisions: torch.Tensor  # (B,) long, SV-SV pairs whose boxes overlap after this step (nominal traffic: 0)
 
 
+@dataclass
+class StageFlags:
+    """The task's latched stages of the current episodes, (B,) bool each (§4.3's r_merge, r_exit,1, r_exit,2;
+    the names a ScenarioSpec's reward terms and success_flag use)."""
+
+    merged: torch.Tensor  # merge: the ego has reached the stability zone in a mainline lane
+    exit1: torch.Tensor  # exit: it has entered lane 1, next to the off-ramp
+    exit2: torch.Tensor  # exit: it has entered the off-ramp lane 2
+
+    def reward_inputs(self) -> dict[str, torch.Tensor]:
+        """The flags under the rewards' keyword names (r_merge, r_exit1, r_exit2), for scenario_reward and
+        deployment_step_reward."""
+        return {"r_merge": self.merged, "r_exit1": self.exit1, "r_exit2": self.exit2}
+
+
 def check_device(device: str | torch.device) -> torch.device:
     try:
         dev = torch.device(device)
@@ -163,10 +178,10 @@ class World:
         s = self.state
         return {"triggers": s.adv_triggers.clone(), "cut_ins": s.adv_cut_ins.clone()}
 
-    def stage_flags(self) -> dict[str, torch.Tensor]:
-        """Latched task stages of the current episodes (B,) bool: merged, exit1, exit2."""
+    def stage_flags(self) -> StageFlags:
+        """Latched task stages of the current episodes (the state's own tensors, updated in place by step)."""
         s = self.state
-        return {"merged": s.merged, "exit1": s.exit1, "exit2": s.exit2}
+        return StageFlags(s.merged, s.exit1, s.exit2)
 
     def neighbours(self, current_lane: torch.Tensor, adjacent_lane: torch.Tensor, d_max: float = D_MAX_M) -> Snapshot:
         """SV1..SV4 of the ego: nearest front/rear vehicle in current_lane and adjacent_lane (B,) within d_max

@@ -13,7 +13,7 @@ from highway_srl.agents.trainer import Trainer
 from highway_srl.experiments.evaluate import run_episodes
 from highway_srl.rules import SafetyLayer
 from highway_srl.rules.raw import FIVE_ACTIONS, LANE_LEFT, LANE_RIGHT, RawSafetyLayer
-from highway_srl.sim import World
+from highway_srl.sim import StageFlags, World
 
 
 class _FixedQ:
@@ -101,7 +101,7 @@ def test_lm_rl_cost_counts_rule_violations_and_collisions_and_lambda_survives_a_
     assert torch.allclose(other.method.lam, torch.tensor([0.7]))
     nxt = trainer.current.primary
     events = SimpleNamespace(collision=torch.tensor([True] + [False] * (trainer.batch - 1)))
-    flags = {k: torch.zeros(trainer.batch, dtype=torch.bool) for k in ("merged", "exit1", "exit2")}
+    flags = StageFlags(*(torch.zeros(trainer.batch, dtype=torch.bool) for _ in range(3)))
     reward, cost = trainer.method.reward("two-lane", nxt, events, flags)
     assert cost[0] == 320.0 and reward[0] == -320.0
     violated = (nxt.rm_state[1:] == 1) | (nxt.rm_state[1:] == 3)
@@ -129,7 +129,7 @@ def test_speed_reward_is_v_over_v_max_and_minus_320_on_collision():
     obs = torch.zeros(3, 37)
     obs[:, 2] = torch.tensor([0.5, 1.0, 0.8])  # ego v_x / v_max
     events = SimpleNamespace(collision=torch.tensor([False, False, True]))
-    flags = {k: torch.zeros(3, dtype=torch.bool) for k in ("merged", "exit1", "exit2")}
+    flags = StageFlags(*(torch.zeros(3, dtype=torch.bool) for _ in range(3)))
     assert speed_reward("two-lane", obs, events, flags).tolist() == [0.5, 1.0, -320.0]
 
 
@@ -155,7 +155,7 @@ def test_no_rm_trains_on_the_speed_reward_and_no_moe_on_the_rm_reward(short_conf
         trainer = Trainer(short_config("moe-rm-srl", options=options))
         nxt = trainer.current.primary
         events = SimpleNamespace(collision=torch.zeros(trainer.batch, dtype=torch.bool))
-        flags = {k: torch.zeros(trainer.batch, dtype=torch.bool) for k in ("merged", "exit1", "exit2")}
+        flags = StageFlags(*(torch.zeros(trainer.batch, dtype=torch.bool) for _ in range(3)))
         reward, _ = trainer.method.reward("two-lane", nxt, events, flags)
         expected = nxt.r_rm if expect_rm else nxt.obs[:, 2].clamp(0, 1)
         assert torch.allclose(reward, expected)

@@ -142,7 +142,7 @@ def check_merge_episode_succeeds(make, seed: int = 1, traffic: str = "A") -> int
         ev = b.step(*idm_ego_backend(b))
         assert not bool(ev.collision[0]), f"collision at step {t}"
         if bool(ev.success[0]):
-            assert bool(b.stage_flags()["merged"][0]) and int(b.ego_lane[0]) < 2
+            assert bool(b.stage_flags().merged[0]) and int(b.ego_lane[0]) < 2
             return t
     raise AssertionError("no success within the episode")
 

@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from highway_srl.rules.episode import EpisodeStats
+from highway_srl.sim import StageFlags
 
 T, F = True, False
 
@@ -15,7 +16,7 @@ def _step(stats, *, collision, success=None, merged=None, speed_ratio, ego_speed
     b = len(collision)
     flag = lambda v: torch.tensor(v if v is not None else [F] * b)  # noqa: E731
     events = SimpleNamespace(collision=torch.tensor(collision), success=flag(success))
-    flags = {"merged": flag(merged), "exit1": flag(None), "exit2": flag(None)}
+    flags = StageFlags(merged=flag(merged), exit1=flag(None), exit2=flag(None))
     view = SimpleNamespace(speed_ratio=torch.tensor(speed_ratio),
                            r_star=None if r_star is None else torch.tensor(r_star))
     stats.add(events, flags, view, torch.tensor(ego_speed), None if reward is None else torch.tensor(reward),

@@ -18,7 +18,7 @@ def test_idm_ego_on_the_ramp_merges_into_the_stability_zone():
         assert not bool(events.collision.any())
         assert not bool(events.terminated.any())  # merging is not terminal
         successes += events.success.long()
-    merged = world.stage_flags()["merged"]
+    merged = world.stage_flags().merged
     assert bool((successes <= 1).all())  # the success event fires once, when the stage is reached
     assert torch.equal(successes == 1, merged)
     assert float(merged.float().mean()) >= 0.75
@@ -75,7 +75,7 @@ def test_reaching_the_off_ramp_end_is_success():
     assert bool(events.success[0]) and not bool(events.failure[0])
     assert int(world.ego_lane[0]) == 2 and float(world.state.x[0, 0]) >= EXIT_X["x3_suc"]
     flags = world.stage_flags()
-    assert bool(flags["exit1"][0]) and bool(flags["exit2"][0])
+    assert bool(flags.exit1[0]) and bool(flags.exit2[0])
     assert t * DT_S < 40.0
 
 
@@ -83,7 +83,7 @@ def test_staying_on_the_mainline_is_failure_at_its_continuation_end():
     world, events, _ = _exit_run(turn_off=False)
     assert bool(events.failure[0]) and not bool(events.success[0])
     assert int(world.ego_lane[0]) == 0 and float(world.state.x[0, 0]) >= EXIT_X["x3_fail"]
-    assert not bool(world.stage_flags()["exit2"][0])
+    assert not bool(world.stage_flags().exit2[0])
 
 
 def test_the_off_ramp_cannot_be_entered_after_the_diverging_zone():
