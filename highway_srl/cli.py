@@ -23,7 +23,7 @@ class Parser(argparse.ArgumentParser):
 
 
 def _scenario(p: argparse.ArgumentParser, default: str | None = "two-lane") -> None:
-    from highway_srl.experiments.commands import level
+    from highway_srl.commands import level
 
     p.add_argument("--scenario", default=default, help=f"one of {', '.join(SCENARIOS)}")
     p.add_argument("--traffic", type=level, default="C", help=f"traffic level, one of {', '.join(TRAFFIC_LEVELS)}")
@@ -69,8 +69,8 @@ def _cmd_bench(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from highway_srl.experiments import commands  # the training / evaluation / study commands, argument types
-    from highway_srl.experiments.commands import non_negative, positive
+    from highway_srl import commands  # the training / evaluation / study commands, argument types
+    from highway_srl.commands import non_negative, positive
 
     parser = Parser(prog="highway-srl", description="Safe RL of autonomous highway driving (MoE-RM-SRL).")
     parser.add_argument("--version", action="version", version=f"highway-srl {__version__}")

@@ -71,7 +71,7 @@ def test_resume_of_a_finished_run_says_so_and_changes_nothing(capsys, finished_r
 
 
 def test_traffic_ranges_and_lists_give_the_right_levels():
-    from highway_srl.experiments.commands import levels
+    from highway_srl.commands import levels
 
     assert levels("A..F") == levels("F..A") == list("ABCDEF")
     assert levels("c") == ["C"] and levels("f,a, c") == ["A", "C", "F"] and levels("E-B") == list("BCDE")

@@ -12,8 +12,8 @@ import time
 import pytest
 
 from highway_srl.agents.registry import METHODS
-from highway_srl.experiments.runner import reproduce
-from highway_srl.experiments.study import OURS, SCENES
+from highway_srl.study.runner import reproduce
+from highway_srl.study.jobs import OURS, SCENES
 
 pytestmark = pytest.mark.slow
 

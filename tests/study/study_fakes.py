@@ -16,7 +16,7 @@ import torch
 from highway_srl.constants import TRAFFIC_LEVELS
 from highway_srl.experiments.evaluate import summarise
 from highway_srl.experiments.runs import append_jsonl, provenance, write_json
-from highway_srl.experiments.study import OURS, SCENES, Job
+from highway_srl.study.jobs import OURS, SCENES, Job
 from highway_srl.experiments.train import training_metrics
 
 GOOD = {"T_c": 1.0, "rise": 0.3, "C_r": 1.0, "speed": 8.0, "R_r": 220.0, "R_s": 0.8}

@@ -6,8 +6,8 @@ import pytest
 
 from highway_srl.agents import registry as methods_mod
 from highway_srl.constants import TRAFFIC_LEVELS
-from highway_srl.experiments import paper_numbers as paper
-from highway_srl.experiments.study import (ABLATIONS, ARTEFACTS, BUDGETS, GROUP1_METHODS, GROUP2_SCENES, GROUP3_SCENES,
+from highway_srl.study import paper_numbers as paper
+from highway_srl.study.jobs import (ABLATIONS, ARTEFACTS, BUDGETS, GROUP1_METHODS, GROUP2_SCENES, GROUP3_SCENES,
                                            METHOD_LABELS, OURS, SCENES, TABLE5_METHODS, TABLE5_SCENES, Job,
                                            job_availability, study_jobs)
 

@@ -12,9 +12,9 @@ from highway_srl.agents import registry as methods_mod
 from highway_srl.cli import main
 from highway_srl.experiments import evaluate as evaluate_mod
 from highway_srl.experiments import train as train_mod
-from highway_srl.experiments.runner import reproduce, run_job
+from highway_srl.study.runner import reproduce, run_job
 from highway_srl.experiments.runs import read_json
-from highway_srl.experiments.study import OURS, study_jobs
+from highway_srl.study.jobs import OURS, study_jobs
 
 QUIET = {"log": lambda s: None, "report": False}
 
@@ -123,7 +123,7 @@ def test_bad_input_gives_a_one_line_error(tmp_path, capsys):
 def test_a_study_made_with_other_budget_settings_is_refused(tmp_path, monkeypatch):
     import dataclasses
 
-    from highway_srl.experiments import study as study_mod
+    from highway_srl.study import jobs as study_mod
 
     root = tmp_path / "study"
     reproduce("smoke", root, jobs=1, work=fakes.fake_work, methods=(OURS,), **QUIET)
@@ -153,7 +153,7 @@ def test_a_part_of_the_study_runs_with_other_seeds_and_keeps_them(tmp_path, caps
 
 
 def test_workers_take_omp_num_threads_when_it_is_set(monkeypatch):
-    from highway_srl.experiments.runner import worker_threads
+    from highway_srl.study.runner import worker_threads
 
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
     assert worker_threads(1) == 1

@@ -3,7 +3,7 @@
 Table 5 ("Comprehensive comparison"), Table 6 ("Ablation results (adv. two-lane)") and the multi-lane
 table, exactly as printed. Percentages are stored as fractions (C_r 89.1% -> 0.891) so they compare
 directly with our rates; T_c is printed as a fraction already. Scene and method keys are the study's
-(`highway_srl.experiments.study.SCENES` / `METHOD_LABELS`).
+(`highway_srl.study.jobs.SCENES` / `METHOD_LABELS`).
 """
 
 from __future__ import annotations

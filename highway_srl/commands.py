@@ -191,7 +191,7 @@ def _cmd_demo(args) -> int:
 
 
 def _cmd_reproduce(args) -> int:
-    from highway_srl.experiments.runner import reproduce
+    from highway_srl.study.runner import reproduce
 
     if args.budget is None:
         raise ValueError("choose a budget: --budget smoke, quick or paper (see highway-srl reproduce --help)")
@@ -211,14 +211,14 @@ def _cmd_reproduce(args) -> int:
 def _reproduce_epilog() -> str:
     import textwrap
 
-    from highway_srl.experiments.study import BUDGETS
+    from highway_srl.study.jobs import BUDGETS
 
     return "budgets:\n" + "\n".join(textwrap.fill(b.expected_cost, 100, initial_indent=f"  {b.name:7s}",
                                                    subsequent_indent=" " * 9) for b in BUDGETS.values())
 
 
 def _cmd_transfer(args) -> int:
-    from highway_srl.experiments.transfer import TransferSettings, run_transfer
+    from highway_srl.study.transfer import TransferSettings, run_transfer
 
     def names(text: str) -> tuple[str, ...]:
         return tuple(x.strip() for x in text.split(",") if x.strip())
@@ -334,7 +334,7 @@ def add_parsers(sub, scenario_args) -> None:
     p.add_argument("--seeds", default=None, help="seeds instead of the budget's, comma-separated, e.g. 0 or 0,1,2")
     p.set_defaults(func=_cmd_reproduce)
 
-    from highway_srl.experiments import transfer as tr
+    from highway_srl.study import transfer as tr
 
     p = sub.add_parser("transfer", help="train in our simulator, deploy in SUMO and highway-env; a side-by-side table",
                        description="Train each method on each scenario in our simulator (level C, one seed), then "

@@ -7,10 +7,10 @@ import shutil
 import pytest
 import study_fakes as fakes
 
-from highway_srl.experiments.report import Check, Claim, claims, dominates, write_report
-from highway_srl.experiments.runner import reproduce
-from highway_srl.experiments.study import OURS
-from highway_srl.experiments.tables import load_results
+from highway_srl.study.report import Check, Claim, claims, dominates, write_report
+from highway_srl.study.runner import reproduce
+from highway_srl.study.jobs import OURS
+from highway_srl.study.tables import load_results
 
 WORSE = {"T_c": 0.2, "rise": 0.95, "C_r": 0.4, "speed": 4.0, "R_r": 20.0, "R_s": 0.1}
 BETTER = {"T_c": 1.0, "rise": 0.1, "C_r": 1.0, "speed": 9.5, "R_r": 300.0, "R_s": 0.95}

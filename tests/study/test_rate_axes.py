@@ -2,7 +2,7 @@
 
 import matplotlib
 
-from highway_srl.experiments.figures import cap_rate_axis
+from highway_srl.study.figures import cap_rate_axis
 
 matplotlib.use("Agg")
 

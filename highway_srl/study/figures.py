@@ -14,8 +14,8 @@ import math
 from pathlib import Path
 
 from highway_srl.constants import TRAFFIC_LEVELS
-from highway_srl.experiments import tables as T
-from highway_srl.experiments.study import METHOD_LABELS, OURS, SCENES
+from highway_srl.study import tables as T
+from highway_srl.study.jobs import METHOD_LABELS, OURS, SCENES
 
 LEVEL_MARKERS = dict(zip(TRAFFIC_LEVELS, ("o", "s", "^", "D", "v", "P")))
 SCENE_MARKERS = dict(zip(SCENES, ("o", "s", "^", "D", "v", "P", "X", "*")))

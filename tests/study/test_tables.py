@@ -7,10 +7,10 @@ import csv
 import pytest
 import study_fakes as fakes
 
-from highway_srl.experiments import paper_numbers as paper
-from highway_srl.experiments.report import write_report
-from highway_srl.experiments.runner import reproduce
-from highway_srl.experiments.study import (ABLATIONS, GROUP1_METHODS, METHOD_LABELS, SCENES, TABLE5_METHODS,
+from highway_srl.study import paper_numbers as paper
+from highway_srl.study.report import write_report
+from highway_srl.study.runner import reproduce
+from highway_srl.study.jobs import (ABLATIONS, GROUP1_METHODS, METHOD_LABELS, SCENES, TABLE5_METHODS,
                                            TABLE5_SCENES)
 
 

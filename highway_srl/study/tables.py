@@ -17,9 +17,9 @@ from pathlib import Path
 from typing import Callable
 
 from highway_srl.constants import TRAFFIC_LEVELS
-from highway_srl.experiments import paper_numbers as paper
+from highway_srl.study import paper_numbers as paper
 from highway_srl.experiments.runs import read_json, read_jsonl
-from highway_srl.experiments.study import (ABLATION_SCENE, ABLATIONS, GROUP1_METHODS, GROUP2_SCENES, GROUP3_SCENES,
+from highway_srl.study.jobs import (ABLATION_SCENE, ABLATIONS, GROUP1_METHODS, GROUP2_SCENES, GROUP3_SCENES,
                                            METHOD_LABELS, MULTILANE_SCENES, OURS, SCENES, TABLE5_METHODS,
                                            TABLE5_SCENES, TRAIN_TRAFFIC, Job)
 

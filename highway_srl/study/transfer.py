@@ -23,8 +23,8 @@ from typing import Callable
 
 from highway_srl.constants import TRAFFIC_LEVELS
 from highway_srl.experiments.runs import open_state, provenance, read_json, write_json
-from highway_srl.experiments.study import METHOD_LABELS, SCENES, Job
-from highway_srl.experiments.tables import Column, Table
+from highway_srl.study.jobs import METHOD_LABELS, SCENES, Job
+from highway_srl.study.tables import Column, Table
 
 SIMULATORS = ("ours", "sumo", "highway-env")
 SIMULATOR_LABELS = {"ours": "ours", "sumo": "SUMO", "highway-env": "highway-env"}
@@ -121,7 +121,7 @@ def run_transfer(out: str | Path, settings: TransferSettings = TransferSettings(
                  log: Callable[[str], None] = print) -> Path:
     """Run every pending job, then write the table; returns the Markdown table's path."""
     from highway_srl.backends import missing_modules
-    from highway_srl.experiments.runner import machine, now, run_local
+    from highway_srl.study.runner import machine, now, run_local
 
     settings.check()
     for sim in simulators:

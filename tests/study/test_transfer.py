@@ -10,7 +10,7 @@ import pytest
 from highway_srl.backends import available_backends
 from highway_srl.cli import main
 from highway_srl.experiments.evaluate import evaluate_run
-from highway_srl.experiments.transfer import TransferSettings, run_transfer
+from highway_srl.study.transfer import TransferSettings, run_transfer
 
 SIMS = available_backends()  # CI installs both extras; elsewhere the missing ones are left out
 SMALL = TransferSettings(steps=320, envs=4, episodes=2, learning_starts=64, batch_size=32, updates_per_step=1)

@@ -3,7 +3,7 @@
 Layout of a study folder (`--out`):
   study.json                 budget, machine, provenance, every job's status, one entry per invocation
   runs/SCENE/VARIANT/        a training run folder (highway_srl.experiments.train) + eval.json + job.json
-  tables/, figures/          the artefacts (highway_srl.experiments.tables / figures)
+  tables/, figures/          the artefacts (highway_srl.study.tables / figures)
   report.md, report.html
 
 A job is done when its folder holds metrics.json and eval.json; done jobs are never run again. A job whose
@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Callable
 
 from highway_srl.experiments.runs import open_state, provenance, read_json, write_json
-from highway_srl.experiments.study import Budget, Job, get_budget, job_availability, study_jobs
+from highway_srl.study.jobs import Budget, Job, get_budget, job_availability, study_jobs
 
 BACKENDS = ("local", "ray")
 STUDY_FILE = "study.json"
@@ -231,7 +231,7 @@ def reproduce(budget: str, out: str | Path, jobs: int | None = None, backend: st
     """
     from dataclasses import replace
 
-    from highway_srl.experiments.study import default_jobs
+    from highway_srl.study.jobs import default_jobs
 
     b = get_budget(budget)
     if seeds is not None:
@@ -317,7 +317,7 @@ def reproduce(budget: str, out: str | Path, jobs: int | None = None, backend: st
     log(f"jobs: {', '.join(f'{n} {s}' for s, n in sorted(counts.items()))}"
         + ("; run the same command again to retry the others" if set(counts) - {"done"} else ""))
     if report:
-        from highway_srl.experiments.report import write_report
+        from highway_srl.study.report import write_report
 
         t1 = time.perf_counter()
         path = write_report(out)

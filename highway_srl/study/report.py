@@ -14,11 +14,11 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from highway_srl.experiments import figures as F
-from highway_srl.experiments import tables as T
-from highway_srl.experiments.paper_numbers import TABLE5
+from highway_srl.study import figures as F
+from highway_srl.study import tables as T
+from highway_srl.study.paper_numbers import TABLE5
 from highway_srl.experiments.runs import provenance
-from highway_srl.experiments.study import (ABLATION_SCENE, ABLATIONS, BUDGETS, GROUP1_METHODS, METHOD_LABELS, OURS,
+from highway_srl.study.jobs import (ABLATION_SCENE, ABLATIONS, BUDGETS, GROUP1_METHODS, METHOD_LABELS, OURS,
                                            SCENES, TABLE5_METHODS, TABLE5_SCENES, TRAIN_TRAFFIC)
 
 COLLISION_FREE = 0.9995  # T_c that prints as 1.000, the paper's value for MoE-RM-SRL in every scene
