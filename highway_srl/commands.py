@@ -195,17 +195,28 @@ def _cmd_reproduce(args) -> int:
 
     if args.budget is None:
         raise ValueError("choose a budget: --budget smoke, quick or paper (see highway-srl reproduce --help)")
-    if args.backend == "local":  # on Ray the workers' devices count, not this machine's
+    executor = _executor(args)
+    if executor == "local":  # on Ray the workers' devices count, not this machine's
         from highway_srl.sim.world import check_device
 
         check_device(args.device)
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip()) if args.methods else None
     scenes = tuple(s.strip() for s in args.scenes.split(",") if s.strip()) if args.scenes else None
     seeds = _seeds(args.seeds) if args.seeds else None
-    state = reproduce(args.budget, args.out, jobs=args.jobs, backend=args.backend, address=args.address,
+    state = reproduce(args.budget, args.out, jobs=args.jobs, executor=executor, address=args.address,
                       device=args.device, methods=methods, scenes=scenes, seeds=seeds)
     failed = [j for j in state["jobs"].values() if j.get("status") == "failed"]
     return 1 if failed else 0
+
+
+def _executor(args) -> str:
+    """--executor, or its deprecated alias --backend (with a one-line note); local if neither is given."""
+    if args.backend_alias is not None:
+        print("note: reproduce --backend is deprecated, use --executor (same values)", file=sys.stderr)
+        if args.executor is not None and args.executor != args.backend_alias:
+            raise ValueError(f"--executor {args.executor} and --backend {args.backend_alias} disagree; "
+                             "give --executor only")
+    return args.executor or args.backend_alias or "local"
 
 
 def _reproduce_epilog() -> str:
@@ -323,7 +334,9 @@ def add_parsers(sub, scenario_args) -> None:
     p.add_argument("--out", default="results", help="study folder (default: results)")
     p.add_argument("--jobs", type=positive, default=None,
                    help="jobs at a time (local: worker processes; default: the number of cores)")
-    p.add_argument("--backend", default="local", help="local (processes on this machine) or ray")
+    p.add_argument("--executor", default=None, help="what runs the jobs: local (processes on this machine, the "
+                   "default) or ray")
+    p.add_argument("--backend", dest="backend_alias", default=None, help="deprecated alias of --executor")
     p.add_argument("--address", default=None, help="Ray cluster address (e.g. auto, ray://HOST:10001); "
                    "default: start a local Ray with --jobs CPUs. Workers need highway-srl installed and --out "
                    "on a shared file system (the tables' files also travel back with each result)")

@@ -204,8 +204,8 @@ def _setting(results: T.Results) -> list[str]:
         f"- **Methods:** {', '.join(state['methods']) if state.get('methods') else 'all the study knows'} (not "
         "the paper's Manual baseline: people at the keyboard, `highway-srl play`); jobs: "
         + ", ".join(f"{n} {s}" for s, n in sorted(counts.items())) + ".",
-        f"- **Machine:** {machine}; host {m.get('host', '?')}; backend {last.get('backend', '?')} with "
-        f"{last.get('jobs', '?')} job(s) at a time.",
+        f"- **Machine:** {machine}; host {m.get('host', '?')}; executor "  # older study.json files say 'backend'
+        f"{last.get('executor', last.get('backend', '?'))} with {last.get('jobs', '?')} job(s) at a time.",
         f"- **Wall time:** {_duration(wall)} over {len(inv)} invocation(s) (the last: {_duration(last.get('wall_s'))});"
         f" {_duration(job_s)} of job time in finished jobs"
         + (f"; {sum(rates) / len(rates):,.0f} env-steps/s per training process on average" if rates else "") + ".",

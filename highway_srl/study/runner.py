@@ -1,4 +1,5 @@
-"""Run the study's jobs: in local worker processes or on a Ray cluster; resume where an earlier run stopped.
+"""Run the study's jobs with an executor, local worker processes or a Ray cluster; resume where an earlier
+run stopped.
 
 Layout of a study folder (`--out`):
   study.json                 budget, machine, provenance, every job's status, one entry per invocation
@@ -28,7 +29,7 @@ from typing import Callable
 from highway_srl.experiments.runs import open_state, provenance, read_json, write_json
 from highway_srl.study.jobs import Budget, Job, get_budget, job_availability, study_jobs
 
-BACKENDS = ("local", "ray")
+EXECUTORS = ("local", "ray")  # what runs the jobs (the simulators are highway_srl.backends)
 STUDY_FILE = "study.json"
 EVAL_FILE = "eval.json"
 JOB_FILE = "job.json"
@@ -89,7 +90,7 @@ def run_job(job_dict: dict, root: str, device: str = "cpu", threads: int = 1, re
 Work = Callable[..., dict]  # run_job's signature; tests pass cheaper stand-ins
 
 
-# ----------------------------------------------------------------------------------------------- backends
+# ---------------------------------------------------------------------------------------------- executors
 def worker_threads(workers: int) -> int:
     """Torch threads per job: OMP_NUM_THREADS if set (the user shares the machine with other work), else the
     cores divided among the workers."""
@@ -135,7 +136,7 @@ def run_ray(jobs: list[Job], root: Path, device: str, on_result, address: str | 
     try:
         import ray
     except ImportError:
-        raise ValueError("the ray backend needs Ray: pip install 'highway-srl[ray]'") from None
+        raise ValueError("the ray executor needs Ray: pip install 'highway-srl[ray]'") from None
     started_here = not ray.is_initialized()
     if started_here:
         kwargs = {"address": address} if address else {"num_cpus": num_cpus}
@@ -219,7 +220,7 @@ def _settings_of(config: dict) -> dict:
             if k not in ("name", "expected_cost")}
 
 
-def reproduce(budget: str, out: str | Path, jobs: int | None = None, backend: str = "local",
+def reproduce(budget: str, out: str | Path, jobs: int | None = None, executor: str = "local",
               address: str | None = None, device: str = "cpu", methods: tuple[str, ...] | None = None,
               scenes: tuple[str, ...] | None = None, seeds: tuple[int, ...] | None = None,
               work: Work = run_job, log: Callable[[str], None] = print, report: bool = True) -> dict:
@@ -238,20 +239,20 @@ def reproduce(budget: str, out: str | Path, jobs: int | None = None, backend: st
         if not seeds or len(set(seeds)) != len(seeds) or any(s < 0 for s in seeds):
             raise ValueError(f"--seeds must be distinct non-negative integers, got {','.join(map(str, seeds))}")
         b = replace(b, seeds=tuple(seeds))
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown backend {backend!r}; choose one of {', '.join(BACKENDS)}")
-    if address and backend != "ray":
-        raise ValueError("--address is for --backend ray")
+    if executor not in EXECUTORS:
+        raise ValueError(f"unknown executor {executor!r}; choose one of {', '.join(EXECUTORS)}")
+    if address and executor != "ray":
+        raise ValueError("--address is for --executor ray")
     if device not in ("cpu", "cuda") and not device.startswith("cuda:"):
         raise ValueError(f"unknown device {device!r}; choose cpu or cuda")
     workers = jobs if jobs is not None else default_jobs()
     if workers < 1:
         raise ValueError(f"--jobs must be a positive integer, got {workers}")
-    if backend == "ray":
+    if executor == "ray":
         try:
             import ray  # noqa: F401
         except ImportError:
-            raise ValueError("the ray backend needs Ray: pip install 'highway-srl[ray]'") from None
+            raise ValueError("the ray executor needs Ray: pip install 'highway-srl[ray]'") from None
     all_jobs = study_jobs(b, methods, scenes)
     out = Path(out)
     state = open_study(out, b)
@@ -260,7 +261,7 @@ def reproduce(budget: str, out: str | Path, jobs: int | None = None, backend: st
     state["scenes"] = list(scenes) if scenes else None
     state["machine"] = machine(device)
     state.update(provenance())
-    invocation = {"started": now(), "backend": backend, "jobs": workers, "device": device, "address": address,
+    invocation = {"started": now(), "executor": executor, "jobs": workers, "device": device, "address": address,
                   "host": state["machine"]["host"], **provenance(), "ran": 0, "skipped_done": 0, "finished": None,
                   "wall_s": None}
     state["invocations"].append(invocation)
@@ -286,7 +287,7 @@ def reproduce(budget: str, out: str | Path, jobs: int | None = None, backend: st
     unavailable = [j for j in all_jobs if state["jobs"][j.id]["status"] == "unavailable"]
     log(f"study {b.name} in {out}: {len(all_jobs)} jobs, {invocation['skipped_done']} done already, "
         f"{len(pending)} to run, {len(unavailable)} unavailable (method not registered yet)"
-        + (f"; {backend} backend, {workers} at a time (progress: {out}/runs/SCENE/VARIANT/scalars.csv)"
+        + (f"; {executor} executor, {workers} at a time (progress: {out}/runs/SCENE/VARIANT/scalars.csv)"
            if pending else ""))
     counter = {"n": 0}
 
@@ -303,7 +304,7 @@ def reproduce(budget: str, out: str | Path, jobs: int | None = None, backend: st
 
     try:
         if pending:
-            if backend == "local":
+            if executor == "local":
                 run_local(pending, out, device, workers, on_result, work)
             else:
                 run_ray(pending, out, device, on_result, address=address, num_cpus=workers, work=work)

@@ -90,7 +90,7 @@ def test_failed_and_unregistered_jobs_are_recorded_and_retried_next_time(tmp_pat
     assert all(v["status"] == "done" for v in state["jobs"].values())
 
 
-def test_local_backend_runs_jobs_in_parallel_worker_processes(tmp_path):
+def test_local_executor_runs_jobs_in_parallel_worker_processes(tmp_path):
     root = tmp_path / "study"
     state = reproduce("smoke", root, jobs=2, work=fakes.fake_work, methods=(OURS,), **QUIET)
     assert len(state["jobs"]) == 11 and all(v["status"] == "done" for v in state["jobs"].values())
@@ -108,7 +108,7 @@ def test_bad_input_gives_a_one_line_error(tmp_path, capsys):
     rc, err = _cli(capsys, "--budget", "quick", "--out", str(root))
     assert rc == 2 and len(err) == 1 and "holds a study of budget 'smoke'" in err[0]
     for argv, words in ((["--budget", "huge"], "unknown budget 'huge'"),
-                        (["--budget", "smoke", "--backend", "slurm"], "unknown backend 'slurm'"),
+                        (["--budget", "smoke", "--executor", "slurm"], "unknown executor 'slurm'"),
                         (["--budget", "smoke", "--methods", "dqn-x"], "'dqn-x'"),
                         ([], "choose a budget")):
         rc, err = _cli(capsys, *argv, "--out", str(tmp_path / "new"))
@@ -118,6 +118,14 @@ def test_bad_input_gives_a_one_line_error(tmp_path, capsys):
     rc, err = _cli(capsys, "--budget", "smoke", "--out", str(tmp_path / "busy"))
     assert rc == 2 and len(err) == 1 and "holds no study" in err[0]
     assert json.loads((root / "study.json").read_text())["budget"] == "smoke"
+
+
+def test_backend_flag_is_a_deprecated_alias_of_executor_with_a_one_line_note(tmp_path, capsys):
+    rc, err = _cli(capsys, "--budget", "smoke", "--backend", "slurm", "--out", str(tmp_path / "new"))
+    assert rc == 2 and len(err) == 2 and "deprecated" in err[0] and "unknown executor 'slurm'" in err[1]
+    rc, err = _cli(capsys, "--budget", "smoke", "--backend", "ray", "--executor", "local", "--out", str(tmp_path / "n"))
+    assert rc == 2 and len(err) == 2 and "disagree" in err[1]
+    assert not (tmp_path / "new").exists() and not (tmp_path / "n").exists()
 
 
 def test_a_study_made_with_other_budget_settings_is_refused(tmp_path, monkeypatch):

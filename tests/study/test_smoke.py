@@ -1,4 +1,4 @@
-"""The smoke budget end to end: real training and evaluation, every artefact, resume, and the Ray backend.
+"""The smoke budget end to end: real training and evaluation, every artefact, resume, and the Ray executor.
 
 Only MoE-RM-SRL (with its ablations, 11 jobs) so that the test stays within a few minutes on 2 cores; the
 full smoke study (43 jobs with every baseline) is the same code with more jobs.
@@ -61,7 +61,7 @@ def test_running_the_finished_study_again_runs_nothing(smoke):
     assert {p: p.stat().st_mtime_ns for p in root.glob("runs/*/*/metrics.json")} == stamps
 
 
-def test_ray_backend_finishes_the_smoke_study_on_a_local_two_cpu_ray(smoke, tmp_path):
+def test_ray_executor_finishes_the_smoke_study_on_a_local_two_cpu_ray(smoke, tmp_path):
     ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'highway-srl[ray]')")
     root, _, _ = smoke
     copy = tmp_path / "results"
@@ -70,10 +70,10 @@ def test_ray_backend_finishes_the_smoke_study_on_a_local_two_cpu_ray(smoke, tmp_
         shutil.rmtree(copy / gone)
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
-        state = reproduce("smoke", copy, backend="ray", methods=(OURS,), log=lambda s: None)
+        state = reproduce("smoke", copy, executor="ray", methods=(OURS,), log=lambda s: None)
     finally:
         ray.shutdown()
     last = state["invocations"][-1]
-    assert (last["backend"], last["ran"], last["skipped_done"]) == ("ray", 2, 9)
+    assert (last["executor"], last["ran"], last["skipped_done"]) == ("ray", 2, 9)
     assert all(v["status"] == "done" for v in state["jobs"].values())
     assert (copy / "runs/exit/moe-rm-srl/eval.json").exists() and (copy / "report.md").exists()
