@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import torch
 
-from highway_srl.agents.dqn import DQNLearner
+from highway_srl.agents.dqn import DQNLearner, UpdateStats
 from highway_srl.agents.ensemble import ensemble_forward
 from highway_srl.agents.methods import Decision, Method
 from highway_srl.agents.moe import grouped_q, seed_of_env
@@ -219,10 +219,11 @@ class LMRL(SingleDQN):
         cost = torch.where(events.collision, torch.full_like(reward, COLLISION_COST), violated)
         return reward, cost
 
-    def update(self, learner: DQNLearner, members: torch.Tensor, batch: dict) -> None:
+    def update(self, learner: DQNLearner, members: torch.Tensor, batch: dict) -> UpdateStats:
         """members (K,): reward networks (even indices) whose buffers gave batch; their cost networks
         (members + 1) train on the same transitions. The learner's own target is y = r + γ(1 - done) max Q;
-        passing the policy-evaluation targets as rewards with done = True makes it exactly y."""
+        passing the policy-evaluation targets as rewards with done = True makes it exactly y.
+        Returns the reward networks' stats (the logs' Q values are returns, not costs)."""
         k = members.shape[0]
         both = torch.cat([members, members + 1]).to(learner.device)
         obs, nxt = batch["obs"], batch["next_obs"]
@@ -235,10 +236,10 @@ class LMRL(SingleDQN):
             bootstrap = learner.config.gamma * (~batch["done"]).to(obs.dtype)
             y_r = batch["reward"] + bootstrap * q_tg[:k].gather(2, a_next).squeeze(2)
             y_c = batch["cost"] + bootstrap * q_tg[k:].gather(2, a_next).squeeze(2)
-        learner.update(both, {
+        return learner.update(both, {
             "obs": torch.cat([obs, obs]), "action": torch.cat([batch["action"]] * 2), "reward": torch.cat([y_r, y_c]),
             "next_obs": torch.cat([nxt, nxt]), "done": torch.ones(2 * k, obs.shape[1], dtype=torch.bool, device=obs.device),
-        })
+        }).head(k)
 
     def after_step(self, trainer, events, cost, done) -> None:
         """Dual ascent: once per vector step in which episodes of a seed ended, λ_seed moves by

@@ -43,6 +43,45 @@ class DQNConfig:
         return self.eps_start + frac * (self.eps_end - self.eps_start)
 
 
+@dataclass
+class UpdateStats:
+    """What one update measured, (K,) per updated member, detached on the learner's device."""
+
+    loss: torch.Tensor  # the minimised loss: mean squared TD error (or Huber)
+    q_mean: torch.Tensor  # mean Q_m(s, a) over the batch
+    td_error: torch.Tensor  # mean |y - Q_m(s, a)| over the batch
+
+    def head(self, k: int) -> "UpdateStats":
+        """The stats of the first k updated members."""
+        return UpdateStats(self.loss[:k], self.q_mean[:k], self.td_error[:k])
+
+
+class UpdateLog:
+    """Sums of UpdateStats over member updates since the last read, kept on the device: add() only queues
+    work (no host read per update); read() makes the one host read at log time and starts again."""
+
+    FIELDS = ("loss", "q_mean", "td_error")
+
+    def __init__(self, device: torch.device | str):
+        self.sums = torch.zeros(len(self.FIELDS), device=device)
+        self.count = 0  # member updates summed (a host number: the members' count is known on the host)
+
+    def add(self, stats: UpdateStats | None) -> None:
+        if stats is None:
+            return
+        self.sums += torch.stack([stats.loss.sum(), stats.q_mean.sum(), stats.td_error.sum()])
+        self.count += stats.loss.shape[0]
+
+    def read(self) -> dict[str, float]:
+        """Mean loss, Q and |TD error| per member update since the last read; {} if there was none."""
+        if self.count == 0:
+            return {}
+        means = (self.sums / self.count).tolist()
+        self.sums.zero_()
+        self.count = 0
+        return dict(zip(self.FIELDS, means))
+
+
 class DQNLearner:
     """Online/target `MLPEnsemble`s with masked Q-values and a per-member Adam.
 
@@ -92,15 +131,15 @@ class DQNLearner:
         """obs: (B, obs_dim) -> (B, M) long: each member's argmax over its own action set."""
         return self.q_values(obs).argmax(-1).T
 
-    def update(self, members: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+    def update(self, members: torch.Tensor, batch: dict[str, torch.Tensor]) -> UpdateStats:
         """One gradient step for each of `members` (K,) long (distinct indices) on its own batch.
 
         batch: "obs" (K, N, obs_dim), "action" (K, N) long (inside the member's set),
         "reward" (K, N), "next_obs" (K, N, obs_dim), "done" (K, N) bool (termination only).
         TD target y = r + gamma (1 - done) max_{a' in A_m} Q_target,m(s', a') (Algorithm 1);
         loss = mean over N of (y - Q_m(s, a))^2 (the DQN loss of §2.3), or Huber if configured.
-        Returns the per-member losses (K,), detached. Nothing here reads a value back to the
-        host, so on a GPU the call queues work without synchronising.
+        Returns the per-member loss, mean Q(s, a) and mean |TD error| (UpdateStats, (K,) each), detached.
+        Nothing here reads a value back to the host, so on a GPU the call queues work without synchronising.
         """
         cfg = self.config
         idx = members.to(self.device)
@@ -136,7 +175,8 @@ class DQNLearner:
             sync = count > cfg.target_update_interval
             self.target_update_count.index_copy_(0, idx, torch.where(sync, torch.zeros_like(count), count))
             self.target.flat.index_copy_(0, idx, torch.where(sync.unsqueeze(1), new_theta, old_target))
-        return per_member.detach()
+        q_sa = q_sa.detach()
+        return UpdateStats(per_member.detach(), q_sa.mean(1), (y - q_sa).abs().mean(1))
 
     def _adam_step(self, idx: torch.Tensor, theta: torch.Tensor, grad: torch.Tensor) -> torch.Tensor:
         """Adam with per-member gradient-norm clipping on gathered rows theta, grad (K, P).

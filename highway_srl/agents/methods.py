@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import torch
 
-from highway_srl.agents.dqn import DQNLearner
+from highway_srl.agents.dqn import DQNLearner, UpdateStats
 from highway_srl.agents.gating import EXPERT_NAMES, expert_action_mask
 from highway_srl.agents.moe import MoEPolicy, seed_of_env
 from highway_srl.agents.replay import ExpertReplay
@@ -66,8 +66,8 @@ class Method:
         members = torch.unique(acted[acted >= 0])
         return members[sizes[members] >= batch_size]
 
-    def update(self, learner: DQNLearner, members: torch.Tensor, batch: dict) -> None:
-        learner.update(members, batch)
+    def update(self, learner: DQNLearner, members: torch.Tensor, batch: dict) -> UpdateStats:
+        return learner.update(members, batch)
 
     def after_step(self, trainer, events, cost, done) -> None:
         pass

@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass, field
 import torch
 
 from highway_srl.agents.checkpoint import policy_tensors, split_policy_tensors
-from highway_srl.agents.dqn import DQNConfig, DQNLearner
+from highway_srl.agents.dqn import DQNConfig, DQNLearner, UpdateLog
 from highway_srl.agents.methods import Method
 from highway_srl.agents.registry import make_method
 from highway_srl.agents.replay import ExpertReplay
@@ -101,6 +101,7 @@ class Trainer:
         self.vector_steps = 0
         # acting member counts, slot 0 = the final fallback (no expert)
         self.usage = torch.zeros(self.method.num_members + 1, dtype=torch.long, device=self.device)
+        self.update_log = UpdateLog(self.device)  # loss, Q, TD error since the last log (not checkpointed)
         # the deployment reward R_r is tracked for every method alike
         self.stats = EpisodeStats(cfg.scenario, self.batch, self.device, self.world.max_steps)
         self.current = self.layer.observe(self.world)
@@ -145,7 +146,7 @@ class Trainer:
             return
         for _ in range(cfg.updates_per_step):
             batch = self.replay.sample(members, cfg.dqn.batch_size, self.gen)
-            self.method.update(self.learner, members, batch)
+            self.update_log.add(self.method.update(self.learner, members, batch))
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict[str, torch.Tensor]:

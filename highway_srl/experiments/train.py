@@ -4,7 +4,8 @@ Run folder layout:
   config.json        the TrainConfig, seed(s), checkpoint_every, version and commit (--resume reads its settings here)
   .lock              advisory lock (flock) held while a process trains here
   episodes.jsonl     one line per finished training episode
-  scalars.csv        env_steps, steps/s, return, collision-free rate, expert usage (TensorBoard too, if installed)
+  scalars.csv        a row every 2,000 env steps: speed, ε, return, collision-free rate, loss, Q, TD error, expert
+                     usage (TrainingLog); tb/ the same and per-episode points in TensorBoard, if it is installed
   model/             final weights (model.safetensors + meta.json), what evaluate and render load
   resume/            full state at the last checkpoint (weights, optimiser, buffers, worlds, RNG); removed at the end
   metrics.json       T_c, T_r, rise time, wall time, steps/s (per seed and their mean)
@@ -19,6 +20,7 @@ from pathlib import Path
 import torch
 
 from highway_srl.agents.checkpoint import CheckpointError, load_checkpoint, policy_tensors, save_checkpoint, write_atomic
+from highway_srl.agents.dqn import UpdateLog
 from highway_srl.agents.trainer import Episode, Trainer, TrainConfig
 from highway_srl.experiments.runs import (
     append_jsonl, check_output_folder, holds_other_files, lock_run, progress_bar, provenance, read_json, read_jsonl,
@@ -87,35 +89,88 @@ def _meta(cfg: TrainConfig, trainer: Trainer, code: dict) -> dict:
             "seeds": list(cfg.seeds), "env_steps": trainer.env_steps, "config": cfg.to_dict(), **code}
 
 
-class _Scalars:
-    HEADER = "env_steps,steps_per_s,epsilon,mean_return,collision_free,episodes\n"
+LOG_EVERY = 2000  # env steps per seed between two rows of scalars.csv (and TensorBoard points)
+RECENT_EPISODES = 100  # mean_return and collision_free are over the last this many episodes
 
-    def __init__(self, out: Path, keep_until: int | None = None):
+
+class TrainingLog:
+    """scalars.csv and, if tensorboard is installed, TensorBoard events (OUT/tb) of a training run.
+
+    A row every LOG_EVERY env steps: env_steps (per seed), steps_per_s (env steps/s, all seeds),
+    episodes_per_s, epsilon, mean_return and collision_free (the last RECENT_EPISODES episodes), episodes
+    (how many that is), loss, q_mean, td_error (means per member update since the last row), usage/NAME
+    (each expert's share of the decisions since the last row, all seeds; usage/fallback: no expert acted).
+    A value that does not exist yet (no episode has ended, no update was made) is an empty cell and no
+    TensorBoard point. TensorBoard also gets a point per finished episode at its env step: episode/return,
+    episode/collision, episode/avg_speed (episodes.jsonl holds the same with the seed). Reading the values
+    is the row's only host read (the learner's stats are summed on the device).
+    """
+
+    def __init__(self, out: Path, trainer: Trainer, keep_until: int | None = None):
         """keep_until: on a resume, the checkpoint's step; rows logged after it are dropped (they are logged again)."""
+        self.columns = ["env_steps", "steps_per_s", "episodes_per_s", "epsilon", "mean_return", "collision_free",
+                        "episodes", *UpdateLog.FIELDS, *_usage_tags(usage_shares(trainer.usage.cpu(), trainer))]
         self.path = out / "scalars.csv"
-        if keep_until is None or not self.path.exists():
-            write_atomic(self.path, self.HEADER.encode())
-        else:
-            lines = self.path.read_text().splitlines(keepends=True)[1:]
-            kept = [ln for ln in lines if ln.endswith("\n") and ln.split(",", 1)[0].isdigit()
-                    and int(ln.split(",", 1)[0]) <= keep_until]
-            write_atomic(self.path, (self.HEADER + "".join(kept)).encode())
+        self._write_kept_rows(keep_until)
         self.tb = None
         try:  # TensorBoard is optional
             from torch.utils.tensorboard import SummaryWriter
 
-            self.tb = SummaryWriter(str(out / "tb"))
+            self.tb = SummaryWriter(str(out / "tb"), purge_step=keep_until)  # a resume drops the later events
         except Exception:  # noqa: BLE001 - tensorboard not installed: the CSV is enough
             self.tb = None
+        self.recent: list[Episode] = []
+        self.ended, self.step, self.time = 0, trainer.env_steps, time.perf_counter()
+        self.usage = trainer.usage.cpu().clone()  # a copy: on the CPU .cpu() is the counter itself
 
-    def log(self, step: int, values: dict) -> None:
+    def _write_kept_rows(self, keep_until: int | None) -> None:
+        """A fresh scalars.csv with this log's header; on a resume, the rows up to keep_until, each value
+        under its column's name (a run started by an older version has fewer columns: theirs stay empty)."""
+        rows = []
+        if keep_until is not None and self.path.exists():
+            lines = self.path.read_text().splitlines(keepends=True)
+            old = lines[0].rstrip("\n").split(",") if lines else []
+            for line in lines[1:]:
+                cells = line.rstrip("\n").split(",")
+                if line.endswith("\n") and cells[0].isdigit() and int(cells[0]) <= keep_until:
+                    row = dict(zip(old, cells))
+                    rows.append(",".join(row.get(c, "") for c in self.columns) + "\n")
+        write_atomic(self.path, (",".join(self.columns) + "\n" + "".join(rows)).encode())
+
+    def episodes(self, finished_eps: list[Episode]) -> None:
+        self.recent = (self.recent + finished_eps)[-RECENT_EPISODES:]
+        self.ended += len(finished_eps)
+        if self.tb is not None:
+            for e in finished_eps:
+                self.tb.add_scalar("episode/return", e.ret, e.step)
+                self.tb.add_scalar("episode/collision", float(e.collision), e.step)
+                self.tb.add_scalar("episode/avg_speed", e.avg_speed, e.step)
+
+    def log(self, trainer: Trainer) -> dict:
+        """Write one row at trainer.env_steps; returns its values (only those that exist)."""
+        now, step, usage = time.perf_counter(), trainer.env_steps, trainer.usage.cpu().clone()
+        wall = max(now - self.time, 1e-9)
+        values = {"steps_per_s": (step - self.step) * len(trainer.config.seeds) / wall,
+                  "episodes_per_s": self.ended / wall, "epsilon": trainer.config.dqn.epsilon(step)}
+        if self.recent:
+            values["mean_return"] = sum(e.ret for e in self.recent) / len(self.recent)
+            values["collision_free"] = sum(not e.collision for e in self.recent) / len(self.recent)
+        values["episodes"] = len(self.recent)
+        values.update(trainer.update_log.read())
+        if int((usage - self.usage).sum()) > 0:
+            values.update(_usage_tags(usage_shares(usage - self.usage, trainer)))
+        self.ended, self.step, self.time, self.usage = 0, step, now, usage
+        cell = lambda v: str(round(v, 5)) if isinstance(v, float) else str(v)  # noqa: E731
         with open(self.path, "a") as f:
-            f.write(",".join(str(round(values[k], 5)) if isinstance(values[k], float) else str(values[k])
-                             for k in ("steps_per_s", "epsilon", "mean_return", "collision_free", "episodes")
-                             ).join([f"{step},", "\n"]))
+            f.write(",".join([str(step)] + [cell(values[k]) if k in values else "" for k in self.columns[1:]]) + "\n")
         if self.tb is not None:
             for k, v in values.items():
                 self.tb.add_scalar(k, v, step)
+        return values
+
+    def close(self) -> None:
+        if self.tb is not None:
+            self.tb.close()  # flushes the events
 
 
 def finished(out: Path) -> bool:
@@ -196,48 +251,35 @@ def _train_locked(cfg: TrainConfig, out: Path, resume: bool, checkpoint_every: i
     if resume and (out / "resume").exists():
         meta = _load_resume(trainer, out / "resume", cfg)
         truncate_jsonl(log, lambda r: r["step"] <= trainer.env_steps)
-        scalars = _Scalars(out, keep_until=trainer.env_steps)
+        scalars = TrainingLog(out, trainer, keep_until=trainer.env_steps)
         prior_wall = meta.get("wall_s", 0.0)
     else:
         log.unlink(missing_ok=True)  # a resume before the first checkpoint starts afresh
         prior_wall = 0.0
         write_json(out / "config.json", {"config": cfg.to_dict(), "checkpoint_every": checkpoint_every, **code})
-        scalars = _Scalars(out)
+        scalars = TrainingLog(out, trainer)
     log.touch()
-    recent: list[Episode] = []
     bar = progress_bar(cfg.steps, f"train {cfg.method}", enabled=progress, initial=min(trainer.env_steps, cfg.steps))
-    last_ckpt, last_log, t_log, s_log = trainer.env_steps, trainer.env_steps, time.perf_counter(), trainer.env_steps
+    last_ckpt, last_log = trainer.env_steps, trainer.env_steps
     try:
         while trainer.env_steps < cfg.steps:
             finished_eps = trainer.step()
             if finished_eps:
                 append_jsonl(log, [_episode_row(e) for e in finished_eps])
-                recent = (recent + finished_eps)[-100:]
+                scalars.episodes(finished_eps)
             if bar is not None:  # tqdm redraws on its own clock (mininterval); no tensor is read here
                 bar.update(min(trainer.env_steps, cfg.steps) - bar.n)
-            if trainer.env_steps - last_log >= 2000 or trainer.env_steps >= cfg.steps:
-                now = time.perf_counter()
-                rate = (trainer.env_steps - s_log) * len(cfg.seeds) / max(now - t_log, 1e-9)
-                stats = {
-                    "steps_per_s": rate,
-                    "epsilon": cfg.dqn.epsilon(trainer.env_steps),
-                    "mean_return": sum(e.ret for e in recent) / len(recent) if recent else 0.0,
-                    "collision_free": sum(not e.collision for e in recent) / len(recent) if recent else 1.0,
-                    "episodes": len(recent),
-                }
-                scalars.log(trainer.env_steps, stats)
+            if trainer.env_steps - last_log >= LOG_EVERY or trainer.env_steps >= cfg.steps:
+                values = scalars.log(trainer)
                 if bar is not None:
-                    share = trainer.usage.float() / trainer.usage.sum().clamp(min=1)
-                    bar.set_postfix(ret=f"{stats['mean_return']:.1f}", free=f"{stats['collision_free']:.2f}",
-                                    eps=f"{stats['epsilon']:.2f}",
-                                    first=f"{float(share[1::trainer.method.num_members // len(cfg.seeds)].sum()):.0%}",
-                                    refresh=False)
-                last_log, t_log, s_log = trainer.env_steps, now, trainer.env_steps
+                    bar.set_postfix(_postfix(values), refresh=False)
+                last_log = trainer.env_steps
             if trainer.env_steps - last_ckpt >= checkpoint_every and trainer.env_steps < cfg.steps:
                 wall = prior_wall + time.perf_counter() - started
                 save_checkpoint(out / "resume", trainer.state_dict(), {**_meta(cfg, trainer, code), "wall_s": wall})
                 last_ckpt = trainer.env_steps
     finally:
+        scalars.close()
         if bar is not None:
             bar.close()  # ends the bar's line, so a message after an interrupt starts on its own line
     wall = prior_wall + time.perf_counter() - started
@@ -252,9 +294,26 @@ def _train_locked(cfg: TrainConfig, out: Path, resume: bool, checkpoint_every: i
     return metrics
 
 
+def _usage_tags(shares: dict[str, float]) -> dict[str, float]:
+    """usage/NAME for each member's share; an expert's "E1,1" becomes "E1_1" (a CSV column, a TensorBoard tag)."""
+    return {f"usage/{name.replace(',', '_')}": v for name, v in shares.items()}
+
+
+def _postfix(values: dict) -> dict[str, str]:
+    """The progress bar's few numbers, of those that exist yet."""
+    shown = {"mean_return": ("ret", "{:.1f}"), "collision_free": ("free", "{:.2f}"), "epsilon": ("eps", "{:.2f}"),
+             "loss": ("loss", "{:.3g}")}
+    return {name: fmt.format(values[k]) for k, (name, fmt) in shown.items() if k in values}
+
+
 def _usage(trainer: Trainer) -> dict:
-    """Share of decisions made by each member (per seed, by expert name for MoE), and by the fallback."""
-    counts = trainer.usage.cpu()
+    """Share of decisions made by each member over the run (metrics.json's member_usage)."""
+    return usage_shares(trainer.usage.cpu(), trainer)
+
+
+def usage_shares(counts: torch.Tensor, trainer: Trainer) -> dict[str, float]:
+    """Share of the decisions counted in counts (M + 1,) (slot 0: the fallback) made by each member, summed
+    over the seeds and named by expert for MoE: {"fallback": ..., NAME: ...} (rounded to 6 digits)."""
     total = max(int(counts.sum()), 1)
     per_seed = trainer.method.num_members // len(trainer.config.seeds)
     names = getattr(trainer.method, "member_names", None) or [f"member{i}" for i in range(per_seed)]

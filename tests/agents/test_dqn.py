@@ -8,7 +8,7 @@ import pytest
 import torch
 from torch import nn
 
-from highway_srl.agents.dqn import DQNConfig, DQNLearner
+from highway_srl.agents.dqn import DQNConfig, DQNLearner, UpdateLog, UpdateStats
 from highway_srl.agents.gating import EXPERT_ACTION_SETS, expert_action_mask
 from highway_srl.agents.replay import ExpertReplay
 
@@ -62,20 +62,36 @@ def test_q_values_are_minus_infinity_outside_each_set_and_greedy_stays_inside():
         assert set(greedy[:, e].tolist()) <= set(actions)
 
 
-def test_first_update_minimises_the_squared_td_error_of_algorithm_1():
+def _q_and_target(learner: DQNLearner, idx: torch.Tensor, batch: dict) -> tuple[torch.Tensor, torch.Tensor]:
+    """Q(s, a) of the batch and Algorithm 1's target y = r + 0.99 (1 - done) max_a' Q_target(s', a'), (K, n) each."""
+    with torch.no_grad():
+        q_sa = learner.online.forward_members(idx, batch["obs"]).gather(2, batch["action"][..., None])[..., 0]
+        q_next = learner.target.forward_members(idx, batch["next_obs"])
+        q_next = q_next.masked_fill(~learner.action_mask[idx][:, None], -torch.inf).amax(-1)
+        return q_sa, batch["reward"] + 0.99 * q_next * (~batch["done"])
+
+
+def test_first_update_minimises_the_squared_td_error_of_algorithm_1_and_reports_its_q_and_td_error():
     gen = torch.Generator().manual_seed(0)
     learner = DQNLearner(3, expert_action_mask()[[0, 1, 5]], SMALL, obs_dim=5, generator=gen)
     idx = torch.tensor([2, 0])
     batch = _batch(learner.action_mask[idx], 32, 5, gen)
-    with torch.no_grad():
-        q = learner.online.forward_members(idx, batch["obs"])
-        q_sa = q.gather(2, batch["action"][..., None])[..., 0]
-        q_next = learner.target.forward_members(idx, batch["next_obs"])
-        q_next = q_next.masked_fill(~learner.action_mask[idx][:, None], -torch.inf).amax(-1)
-        y = batch["reward"] + 0.99 * q_next * (~batch["done"])
-    loss = learner.update(idx, batch)
-    torch.testing.assert_close(loss, (y - q_sa).square().mean(1))
-    assert learner.update(idx, batch).sum() < loss.sum()
+    q_sa, y = _q_and_target(learner, idx, batch)
+    stats = learner.update(idx, batch)
+    torch.testing.assert_close(stats.loss, (y - q_sa).square().mean(1))
+    torch.testing.assert_close(stats.q_mean, q_sa.mean(1))
+    torch.testing.assert_close(stats.td_error, (y - q_sa).abs().mean(1))
+    assert learner.update(idx, batch).loss.sum() < stats.loss.sum()
+
+
+def test_update_log_averages_over_member_updates_and_has_nothing_before_the_first():
+    stats = UpdateStats(torch.tensor([1.0, 3.0]), torch.tensor([10.0, 20.0]), torch.tensor([0.5, 1.5]))
+    log = UpdateLog("cpu")
+    assert log.read() == {}
+    log.add(stats)
+    log.add(stats.head(1))
+    assert log.read() == pytest.approx({"loss": 5.0 / 3, "q_mean": 40.0 / 3, "td_error": 2.5 / 3})
+    assert log.read() == {}  # a read starts again
 
 
 def test_masked_adam_equals_torch_adam_with_clipping_on_one_member():
@@ -166,7 +182,7 @@ def test_state_dict_round_trip_gives_identical_q_values_and_identical_next_updat
     obs = torch.randn(10, 5)
     assert torch.equal(a.q_values(obs), b.q_values(obs))
     batch = _batch(mask[[1, 2]], 16, 5, gen)
-    assert torch.equal(a.update(torch.tensor([1, 2]), batch), b.update(torch.tensor([1, 2]), batch))
+    assert torch.equal(a.update(torch.tensor([1, 2]), batch).loss, b.update(torch.tensor([1, 2]), batch).loss)
     for key, value in a.state_dict().items():
         assert torch.equal(value, b.state_dict()[key]), key
     with pytest.raises(ValueError, match="action sets"):
