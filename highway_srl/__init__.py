@@ -6,11 +6,9 @@
     world = highway_srl.World("two-lane", num_envs=4096)   # the raw batched simulator
 """
 
-from highway_srl.scenarios import SPECS as _SPECS  # leaf data, no torch
+from highway_srl.scenarios import ENV_IDS  # leaf data, no torch; scenario -> <name> of highway-srl/<name>-v0
 
 __version__ = "0.1.0"
-
-ENV_IDS = {name: spec.gym_name for name, spec in _SPECS.items()}  # scenario -> <name> of highway-srl/<name>-v0
 
 
 def make(scenario: str = "two-lane", traffic: str = "C", adversarial: bool = False, num_envs: int = 1,

@@ -184,6 +184,7 @@ SPECS: dict[str, ScenarioSpec] = {
     ),
 }
 assert tuple(SPECS) == SCENARIOS, "constants.SCENARIOS and the specs must list the same scenarios"
+ENV_IDS = {name: spec.gym_name for name, spec in SPECS.items()}  # scenario -> <name> of highway-srl/<name>-v0
 
 
 def scenario_spec(name: str) -> ScenarioSpec:

@@ -24,10 +24,10 @@ import torch
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 
-from highway_srl import ENV_IDS
 from highway_srl.constants import EPISODE_STEPS
 from highway_srl.rules import ACTIONS, SafetyLayer, observation_ranges, scenario_reward
 from highway_srl.rules.episode import advance
+from highway_srl.scenarios import ENV_IDS
 from highway_srl.sim import World
 
 RENDER_FPS = 8  # one frame per decision at the paper's 8 Hz

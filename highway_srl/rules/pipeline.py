@@ -130,7 +130,7 @@ class SafetyStep:
         if use_second is None:
             return self.primary
         pick = use_second.bool() & self.two_models
-        return _where_tree(pick, self.second, self.primary)
+        return where_tree(pick, self.second, self.primary)
 
 
 def straddle_grouping(r_star: torch.Tensor, m_l_ego: torch.Tensor) -> torch.Tensor:
@@ -143,11 +143,11 @@ def straddle_grouping(r_star: torch.Tensor, m_l_ego: torch.Tensor) -> torch.Tens
     return torch.stack([front, r_star[:, 1], rear, r_star[:, 3]], 1)
 
 
-def _where_tree(pick: torch.Tensor, a, b):
+def where_tree(pick: torch.Tensor, a, b):
     if isinstance(a, torch.Tensor):
         p = pick.reshape(pick.shape + (1,) * (a.dim() - 1))
         return torch.where(p, a, b)
-    return type(a)(**{f.name: _where_tree(pick, getattr(a, f.name), getattr(b, f.name)) for f in fields(a)})
+    return type(a)(**{f.name: where_tree(pick, getattr(a, f.name), getattr(b, f.name)) for f in fields(a)})
 
 
 def choose_second(q_primary: torch.Tensor, q_second: torch.Tensor, two_models: torch.Tensor) -> torch.Tensor:

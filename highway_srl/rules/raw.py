@@ -33,7 +33,7 @@ import torch
 from highway_srl.constants import D_ML_M, DT_S, EGO_BRAKE_MAX_MPS2, SV_BRAKE_MAX_MPS2, VEHICLE_LENGTH_M
 from highway_srl.rules.mappings import NO_LANE, LaneModel, crossing_allowed, fill_defaults, lane_exists, target_speed
 from highway_srl.rules.observation import OBS_NAMES, build_observation, ego_progress_feature
-from highway_srl.rules.pipeline import FRONT_SLOTS, ModelStep, SafetyLayer, SafetyStep, _where_tree, control_profile
+from highway_srl.rules.pipeline import FRONT_SLOTS, ModelStep, SafetyLayer, SafetyStep, where_tree, control_profile
 from highway_srl.rules.reward_machine import D_ACC_M, desired_speed, reward_machine_state, rm_reward
 from highway_srl.rules.safe_actions import IDLE, LANE_CHANGE, safe_action_mask_from
 from highway_srl.rules.safe_distance import rule_indicator
@@ -135,7 +135,7 @@ class RawSafetyLayer:
             r, gaps, dx = self._rules(snap, veh)
             change_ok = crossing_allowed(road, ego_lane, lane, x) & r[:, 1] & r[:, 3]
             sides.append((snap, veh, r, gaps, dx, change_ok, real))
-        pick = lambda i: _where_tree(adjacent_is_left, sides[0][i], sides[1][i])  # noqa: E731
+        pick = lambda i: where_tree(adjacent_is_left, sides[0][i], sides[1][i])  # noqa: E731
         snap, veh = pick(0), pick(1)
         r_sv, gaps, dx = pick(2), pick(3), pick(4)
         adjacent_real = torch.where(adjacent_is_left, sides[0][6], sides[1][6])

@@ -73,7 +73,7 @@ def task_lane(road: Road, lane: torch.Tensor) -> torch.Tensor:
 def idm_ego(world: World) -> tuple[torch.Tensor, torch.Tensor]:
     """(target_lane (B,), target_speed (B,)) for the ego of every env."""
     s, road = world.state, world.road
-    tables = world._lane_tables
+    tables = world.lane_tables
     w = road.lane_width_m
     x, y, v = s.x[:, 0], s.y[:, 0], s.v[:, 0]
     lane, tgt = s.lane[:, 0], s.target_lane[:, 0]

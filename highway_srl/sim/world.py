@@ -172,6 +172,11 @@ class World:
     def ego_speed(self) -> torch.Tensor:
         return self.state.v[:, 0]
 
+    @property
+    def lane_tables(self) -> LaneTables:
+        """The road's per-lane lookup tables on this world's device (read-only use)."""
+        return self._lane_tables
+
     def adversary_counts(self) -> dict[str, torch.Tensor]:
         """Group-3 counters of the current episodes (B,) long: triggers (trigger draws made) and cut_ins
         (forced lane changes started); zero in nominal traffic, reset with each episode."""

@@ -323,6 +323,6 @@ def write_report(root: str | Path) -> Path:
     tables.update(figure_tables)
     blocks = build_blocks(root, results, tables, figures)
     md = root / "report.md"
-    T._write_text(md, render_markdown(blocks))
-    T._write_text(root / "report.html", render_html(blocks, root))
+    T.write_text(md, render_markdown(blocks))
+    T.write_text(root / "report.html", render_html(blocks, root))
     return md

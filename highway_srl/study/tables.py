@@ -180,8 +180,8 @@ class Table:
     def write(self, folder: Path) -> list[Path]:
         folder.mkdir(parents=True, exist_ok=True)
         paths = [folder / f"{self.name}.csv", folder / f"{self.name}.md"]
-        _write_text(paths[0], self.csv_text())
-        _write_text(paths[1], self.markdown())
+        write_text(paths[0], self.csv_text())
+        write_text(paths[1], self.markdown())
         return paths
 
 
@@ -191,7 +191,7 @@ def _csv_value(v):
     return v
 
 
-def _write_text(path: Path, text: str) -> None:
+def write_text(path: Path, text: str) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     tmp.write_text(text)
     tmp.replace(path)

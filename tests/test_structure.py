@@ -1,0 +1,96 @@
+"""The house's shape (issue 11): no import circle among highway_srl's modules, dependencies point down the
+layers, and no private name (_x) is imported from another module."""
+
+import ast
+from pathlib import Path
+
+import highway_srl
+
+PACKAGE = Path(highway_srl.__file__).parent
+# lower number = lower layer; a module may import only from its own layer or below. The root package
+# (highway_srl/__init__.py) is the public facade: it may import any layer lazily, and others take only
+# __version__ from it.
+LAYERS = {"constants": 0, "scenarios": 0, "sim": 1, "rules": 2, "backends": 2, "env": 3, "agents": 3, "sb3": 4,
+          "experiments": 4, "study": 5, "commands": 6, "cli": 7}
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for path in PACKAGE.rglob("*.py"):
+        parts = ["highway_srl", *path.relative_to(PACKAGE).with_suffix("").parts]
+        out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return out
+
+
+def _imports(path: Path) -> list[tuple[str, list[str]]]:
+    """(module, names) of every highway_srl import in the file, at any depth (lazy imports count)."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("highway_srl"):
+            found.append((node.module, [a.name for a in node.names]))
+        elif isinstance(node, ast.Import):
+            found += [(a.name, []) for a in node.names if a.name.startswith("highway_srl")]
+    return found
+
+
+def _graph() -> dict[str, set[str]]:
+    mods = _modules()
+    graph = {}
+    for name, path in mods.items():
+        deps = set()
+        for module, names in _imports(path):
+            # `from highway_srl.experiments import train` imports the module highway_srl.experiments.train
+            deps |= {f"{module}.{n}" for n in names if f"{module}.{n}" in mods} or {module}
+        graph[name] = {d for d in deps if d in mods and d != name}
+    return graph
+
+
+def _layer(module: str) -> int | None:
+    parts = module.split(".")
+    return LAYERS[parts[1]] if len(parts) > 1 else None
+
+
+def test_every_subpackage_and_top_level_module_has_a_layer():
+    assert {m.split(".")[1] for m in _modules() if "." in m} == set(LAYERS)
+
+
+def test_no_import_circle_among_the_modules():
+    graph, state, circles = _graph(), {}, []
+
+    def visit(node, path):
+        state[node] = "open"
+        for dep in sorted(graph[node]):
+            if state.get(dep) == "open":
+                circles.append(path[path.index(dep):] + [dep])
+            elif dep not in state:
+                visit(dep, path + [dep])
+        state[node] = "done"
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node, [node])
+    assert circles == []
+
+
+def test_dependencies_point_down_the_layers():
+    upward = []
+    for module, deps in _graph().items():
+        if _layer(module) is None:
+            continue  # the facade
+        for dep in deps:
+            if dep != "highway_srl" and _layer(dep) > _layer(module):
+                upward.append(f"{module} -> {dep}")
+    assert upward == []
+
+
+def test_only_the_version_is_taken_from_the_facade():
+    mods = _modules()
+    taken = {n for path in mods.values() for module, names in _imports(path) if module == "highway_srl"
+             for n in names if f"highway_srl.{n}" not in mods}  # `from highway_srl import commands` is a module
+    assert taken <= {"__version__"}
+
+
+def test_no_private_name_is_imported_from_another_module():
+    private = [f"{name}: {module}.{n}" for name, path in _modules().items() for module, names in _imports(path)
+               for n in names if n.startswith("_") and n != "__version__"]
+    assert private == []
