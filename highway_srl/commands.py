@@ -204,7 +204,7 @@ def _cmd_reproduce(args) -> int:
     scenes = tuple(s.strip() for s in args.scenes.split(",") if s.strip()) if args.scenes else None
     seeds = _seeds(args.seeds) if args.seeds else None
     state = reproduce(args.budget, args.out, jobs=args.jobs, executor=executor, address=args.address,
-                      device=args.device, methods=methods, scenes=scenes, seeds=seeds)
+                      device=args.device, methods=methods, scenes=scenes, seeds=seeds, progress=True)
     failed = [j for j in state["jobs"].values() if j.get("status") == "failed"]
     return 1 if failed else 0
 

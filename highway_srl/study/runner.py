@@ -46,6 +46,67 @@ def job_done(root: Path, job: Job) -> bool:
     return (folder / "metrics.json").exists() and (folder / EVAL_FILE).exists()
 
 
+def job_fraction(root: Path, job: Job) -> float:
+    """How far a job's training is, 0..1, read from the last row of its scalars.csv (written every few
+    thousand env steps by the worker); 0 when nothing is logged yet. Cheap: reads the file's tail only."""
+    path = root / job.folder / "scalars.csv"
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - 4096))
+            last = f.read().decode("utf-8", "replace").strip().splitlines()[-1]
+        step = float(last.split(",")[0])
+    except (OSError, IndexError, ValueError):
+        return 0.0
+    return min(1.0, max(0.0, step / max(1, job.steps)))
+
+
+class StudyProgress:
+    """A live bar over the pending jobs (unit: jobs, fractional while they train) with an ETA, redrawn
+    every second by a daemon thread that reads each running job's scalars.csv; never touches the workers."""
+
+    def __init__(self, root: Path, jobs: list[Job], enabled: bool = True, interval_s: float = 1.0):
+        import threading
+
+        from highway_srl.experiments.runs import progress_bar
+
+        self.root, self.jobs, self.interval_s = root, list(jobs), interval_s
+        self.finished: set[str] = set()
+        self.shown = 0.0
+        self.bar = progress_bar(len(self.jobs), "study", unit="job", enabled=enabled and bool(self.jobs))
+        self.stop = threading.Event()
+        self.lock = threading.Lock()
+        self.thread = threading.Thread(target=self._run, daemon=True) if self.bar is not None else None
+        if self.thread is not None:
+            self.thread.start()
+
+    def job_finished(self, job: Job) -> None:
+        with self.lock:
+            self.finished.add(job.id)
+        self.refresh()
+
+    def refresh(self) -> None:
+        if self.bar is None:
+            return
+        with self.lock:
+            done = sum(1.0 if j.id in self.finished else job_fraction(self.root, j) for j in self.jobs)
+            if done > self.shown:  # never backwards (a resumed job's log may restart below its old row)
+                self.bar.update(round(done - self.shown, 4))
+                self.shown = done
+            self.bar.refresh()
+
+    def _run(self) -> None:
+        while not self.stop.wait(self.interval_s):
+            self.refresh()
+
+    def close(self) -> None:
+        self.stop.set()
+        if self.thread is not None:
+            self.thread.join(timeout=5)
+        if self.bar is not None:
+            self.bar.close()
+
+
 # ----------------------------------------------------------------------------------------------- one job
 def run_job(job_dict: dict, root: str, device: str = "cpu", threads: int = 1, return_files: bool = False) -> dict:
     """Train (or resume) and evaluate one job; never raises. Runs in a worker process or a Ray task.
@@ -223,12 +284,14 @@ def _settings_of(config: dict) -> dict:
 def reproduce(budget: str, out: str | Path, jobs: int | None = None, executor: str = "local",
               address: str | None = None, device: str = "cpu", methods: tuple[str, ...] | None = None,
               scenes: tuple[str, ...] | None = None, seeds: tuple[int, ...] | None = None,
-              work: Work = run_job, log: Callable[[str], None] = print, report: bool = True) -> dict:
+              work: Work = run_job, log: Callable[[str], None] = print, report: bool = True,
+              progress: bool = False) -> dict:
     """Run every pending job of the study at `budget` in `out`, then write the tables, figures and report.
 
     scenes / seeds: a part of the study (say, two-lane only) or other seeds than the budget's; the seeds
     become part of the budget's settings, so a folder is never resumed with different ones.
     Returns the final study.json content. `work` runs one job (run_job; tests pass stand-ins).
+    progress: a live bar over the pending jobs with an ETA (the CLI's; job lines are then written above it).
     """
     from dataclasses import replace
 
@@ -290,8 +353,12 @@ def reproduce(budget: str, out: str | Path, jobs: int | None = None, executor: s
         + (f"; {executor} executor, {workers} at a time (progress: {out}/runs/SCENE/VARIANT/scalars.csv)"
            if pending else ""))
     counter = {"n": 0}
+    bar = StudyProgress(out, pending, enabled=progress)
+    if bar.bar is not None:
+        log = bar.bar.write  # job lines go above the live bar, not through it
 
     def on_result(job: Job, result: dict) -> None:
+        bar.job_finished(job)
         counter["n"] += 1
         entry = state["jobs"][job.id]
         entry.update(status=result.get("status", "failed"), message=result.get("message"),
@@ -309,6 +376,7 @@ def reproduce(budget: str, out: str | Path, jobs: int | None = None, executor: s
             else:
                 run_ray(pending, out, device, on_result, address=address, num_cpus=workers, work=work)
     finally:
+        bar.close()
         invocation["finished"] = now()
         invocation["wall_s"] = round(time.perf_counter() - t0, 2)
         write_json(out / STUDY_FILE, state)

@@ -168,3 +168,43 @@ def test_workers_take_omp_num_threads_when_it_is_set(monkeypatch):
     monkeypatch.delenv("OMP_NUM_THREADS")
     monkeypatch.setattr("os.cpu_count", lambda: 8)
     assert worker_threads(2) == 4 and worker_threads(16) == 1
+
+
+def test_job_fraction_reads_the_last_logged_step_of_a_running_job(tmp_path):
+    from highway_srl.study.jobs import Job
+    from highway_srl.study.runner import job_fraction
+
+    job = Job("rl", "two-lane", steps=8000)
+    assert job_fraction(tmp_path, job) == 0.0  # nothing logged yet
+    folder = tmp_path / job.folder
+    folder.mkdir(parents=True)
+    (folder / "scalars.csv").write_text("env_steps,speed\n2000,5.1\n4000,5.3\n")
+    assert job_fraction(tmp_path, job) == 0.5
+    (folder / "scalars.csv").write_text("env_steps,speed\n2000,5.1\n12000,5.3\n")
+    assert job_fraction(tmp_path, job) == 1.0  # never past the job
+
+
+def test_study_progress_counts_running_jobs_by_their_logs_and_ends_at_the_total(tmp_path):
+    from highway_srl.study.jobs import Job
+    from highway_srl.study.runner import StudyProgress
+
+    jobs = [Job("rl", "two-lane", steps=4000), Job("sr-rl", "two-lane", steps=4000)]
+    (tmp_path / jobs[0].folder).mkdir(parents=True)
+    (tmp_path / jobs[0].folder / "scalars.csv").write_text("env_steps\n2000\n")
+    bar = StudyProgress(tmp_path, jobs, enabled=True, interval_s=60.0)
+    try:
+        bar.refresh()
+        assert bar.bar.n == pytest.approx(0.5)
+        bar.job_finished(jobs[0])
+        bar.job_finished(jobs[1])
+        assert bar.bar.n == pytest.approx(2.0) and bar.bar.n <= bar.bar.total
+    finally:
+        bar.close()
+
+
+def test_reproduce_with_progress_writes_job_lines_and_finishes(tmp_path, capsys):
+    reproduce("smoke", tmp_path / "study", jobs=1, work=fakes.fake_work, report=False, progress=True)
+    err = capsys.readouterr()
+    assert "study" in err.err  # the bar is drawn on stderr
+    n = len(study_jobs("smoke"))
+    assert f"[{n}/{n}]" in err.out  # every job's line, written above the bar
