@@ -28,8 +28,13 @@ def __getattr__(name):
 
 
 def _register() -> None:
-    """The four ids; gymnasium.make_vec builds the batched HighwayVectorEnv through vector_entry_point."""
-    import gymnasium
+    """The four ids; gymnasium.make_vec builds the batched HighwayVectorEnv through vector_entry_point.
+    Without gymnasium (a bare GPU machine) the simulator, agents and benches still import; only
+    highway_srl.make and the env need it."""
+    try:
+        import gymnasium
+    except ImportError:
+        return
 
     from highway_srl.constants import EPISODE_STEPS
 

@@ -52,7 +52,8 @@ def _cmd_bench(args) -> int:
 
     if args.what == "sim":
         bench.check_sim_memory(args.scenario, args.traffic, args.envs, args.device, args.adversarial)
-        result = bench.bench_sim(args.scenario, args.traffic, args.envs, args.steps, args.device, args.adversarial)
+        result = bench.bench_sim(args.scenario, args.traffic, args.envs, args.steps, args.device, args.adversarial,
+                                 compile=args.compile)
         line = (f"{result['scenario']} level {result['traffic']}: {result['envs']} envs x {result['steps']} steps on "
                 f"{result['device']}: {result['env_steps_per_s']:,.0f} env-steps/s = "
                 f"{result['sim_s_per_wall_s']:,.0f} simulated s per wall s")
@@ -95,6 +96,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=positive, default=200)
     p.add_argument("--seeds", type=positive, default=1, help="independent agents trained at once (bench train)")
     p.add_argument("--device", default="cpu")
+    # off by default: compiling takes minutes and pays only over long runs (docs/benchmarks.md)
+    p.add_argument("--compile", action=argparse.BooleanOptionalAction, default=False,
+                   help="bench sim: the compiled static-shape step (CUDA graphs on CUDA; needs a C++ compiler on CPU)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_bench)
 

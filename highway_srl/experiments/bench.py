@@ -66,26 +66,28 @@ def check_sim_memory(scenario: str, traffic: str, envs: int, device: str, advers
 
 
 def bench_sim(scenario: str, traffic: str, envs: int, steps: int, device: str, adversarial: bool = False,
-              warmup: int = 10) -> dict:
-    """Env-steps per second of World.step (+ resets) with the ego holding its lane at a constant 8 m/s."""
+              warmup: int = 10, compile: bool | str = False) -> dict:
+    """Env-steps per second of World.step (+ resets) with the ego holding its lane at a constant 8 m/s.
+
+    compile: see World; the warm-up steps then include the compilation, reported as warmup_s, and
+    env_steps_per_s_with_compile counts them (compilation included) next to the steady rate."""
     if steps < 1:
         raise ValueError(f"steps must be a positive integer, got {steps}")
-    world = World(scenario, traffic, adversarial=adversarial, num_envs=envs, device=device, seed=0)
+    start = time.perf_counter()
+    world = World(scenario, traffic, adversarial=adversarial, num_envs=envs, device=device, seed=0, compile=compile)
     speed = torch.full((envs,), 8.0, device=world.device)
 
     def run(n: int) -> None:
         for _ in range(n):
-            events = world.step(world.ego_lane, speed)
-            done = events.terminated | events.truncated
-            if bool(done.any()):
-                world.reset(done)
+            world.step_and_reset(world.ego_lane, speed)
 
     run(warmup)
     _sync(world.device)
-    start = time.perf_counter()
+    warm = time.perf_counter()
     run(steps)
     _sync(world.device)
-    wall = time.perf_counter() - start
+    end = time.perf_counter()
+    wall = end - warm
     rate = envs * steps / wall
     return {
         "what": "sim",
@@ -95,8 +97,12 @@ def bench_sim(scenario: str, traffic: str, envs: int, steps: int, device: str, a
         "envs": envs,
         "steps": steps,
         "device": str(world.device),
+        "compile": compile,
         "wall_s": round(wall, 4),
         "env_steps_per_s": round(rate, 1),
         "sim_s_per_wall_s": round(rate * DT_S, 1),
+        "warmup_steps": warmup,
+        "warmup_s": round(warm - start, 3),
+        "env_steps_per_s_with_compile": round(envs * (steps + warmup) / (end - start), 1),
         "machine": machine(),
     }

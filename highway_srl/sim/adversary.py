@@ -14,6 +14,7 @@ import torch
 from highway_srl.constants import DT_S, EGO_BRAKE_MAX_MPS2, SV_BRAKE_MAX_MPS2, VEHICLE_LENGTH_M
 from highway_srl.sim import rng
 from highway_srl.sim.lane_tables import LaneTables
+from highway_srl.sim.selection import entries, narrow, none_left, ones, put
 from highway_srl.sim.state import WorldState
 from highway_srl.sim.traffic import FAR_M, MOBIL_MIN_GAP_M
 from highway_srl.sim.traffic_model import Neighbours
@@ -35,7 +36,7 @@ def kinematic_safe_distance(v_follower: torch.Tensor, v_leader: torch.Tensor) ->
     return (v * DT_S + v * v / (2 * EGO_BRAKE_MAX_MPS2) - u * u / (2 * SV_BRAKE_MAX_MPS2)).clamp(min=0)
 
 
-def safe_distance_cut_ins(s: WorldState, tables: LaneTables, nb: Neighbours) -> None:
+def safe_distance_cut_ins(s: WorldState, tables: LaneTables, nb: Neighbours, static: bool = False) -> None:
     """Group 3: an adjacent-lane SV ahead of the ego (its rear bumper ahead of the ego's front bumper)
     cuts into the ego's lane once its gap falls below d_trig = (the ego's kinematic safe distance to it)
     + offset, offset in {0, 5, 10} m, with probability ABP; each SV evaluates its trigger once per episode.
@@ -45,14 +46,15 @@ def safe_distance_cut_ins(s: WorldState, tables: LaneTables, nb: Neighbours) -> 
     so a cut-in never lands on another SV. With
     ADVERSARIAL_ALONGSIDE an SV alongside the ego (its centre at most L behind the ego's) may also cut
     in, which is a side swipe no driving policy can avoid (see docs/paper-notes.md).
+    static: visit every vehicle under a mask (see sim/selection.py) instead of listing the candidates.
     """
     ego_lane, ego_x, ego_v = s.lane[:, :1], s.x[:, :1], s.v[:, :1]
     lowest = ego_x - VEHICLE_LENGTH_M if ADVERSARIAL_ALONGSIDE else ego_x + VEHICLE_LENGTH_M
     cand = ((s.lane - ego_lane).abs() == 1) & (s.x >= lowest) & ~s.trigger_used
     cand &= (s.adversarial_prob > 0) & (s.target_lane == s.lane)
     cand[:, 0] = False
-    bb, ii = cand.nonzero(as_tuple=True)
-    if bb.numel() == 0:
+    bb, ii, sel = entries(cand, static)
+    if none_left(bb, sel):
         return
     el = ego_lane[bb, 0]
     x, v = s.x[bb, ii], s.v[bb, ii]
@@ -68,26 +70,28 @@ def safe_distance_cut_ins(s: WorldState, tables: LaneTables, nb: Neighbours) -> 
     ev = ego_v[bb, 0]
     d_safe = kinematic_safe_distance(ev, v)
     trig = keep & (gap < d_safe + s.trigger_offset[bb, ii])
-    bb, ii, el = bb[trig], ii[trig], el[trig]
-    if bb.numel() == 0:
+    sel, bb, ii, el = narrow(sel, trig, bb, ii, el)
+    if none_left(bb, sel):
         return
-    _draw_and_force(s, bb, ii, el, S_ADV)
+    _draw_and_force(s, bb, ii, el, S_ADV, sel)
 
 
-def _draw_and_force(s: WorldState, bb: torch.Tensor, ii: torch.Tensor, lane: torch.Tensor, stream: int) -> None:
+def _draw_and_force(s: WorldState, bb: torch.Tensor, ii: torch.Tensor, lane: torch.Tensor, stream: int,
+                    sel: torch.Tensor | None = None) -> None:
     """The trigger of SVs (env bb, vehicle ii), all (M,): one draw each, marked used; with probability ABP
     the SV's target becomes `lane` at once, forced (MOBIL's checks and the abort skipped until it is
-    centred). Adds to the episode's counters adv_triggers and adv_cut_ins."""
+    centred). Adds to the episode's counters adv_triggers and adv_cut_ins. sel: see sim/selection.py."""
     u = rng.uniform_at(rng.key(s.seed[bb], s.episode[bb], s.t[bb], stream), ii)
     fire = u < s.adversarial_prob[bb, ii]
-    s.trigger_used[bb, ii] = True
-    s.forced[bb[fire], ii[fire]] = True
-    s.target_lane[bb[fire], ii[fire]] = lane[fire]
-    s.adv_triggers.index_add_(0, bb, torch.ones_like(bb))
-    s.adv_cut_ins.index_add_(0, bb[fire], torch.ones_like(bb[fire]))
+    put(s.trigger_used, bb, ii, True, sel)
+    s.adv_triggers.index_add_(0, bb, ones(bb, sel))
+    sel, bb, ii, lane = narrow(sel, fire, bb, ii, lane)
+    put(s.forced, bb, ii, True, sel)
+    put(s.target_lane, bb, ii, lane, sel)
+    s.adv_cut_ins.index_add_(0, bb, ones(bb, sel))
 
 
-def paper_cut_ins(s: WorldState, tables: LaneTables) -> None:
+def paper_cut_ins(s: WorldState, tables: LaneTables, static: bool = False) -> None:
     """Group 3 as printed (§4.3): "When the distance between the EV and SV_i falls below |d_trig - d_SVi|,
     the SV initiates a forced lane change with probability ABP ... at most once per episode."
 
@@ -97,17 +101,19 @@ def paper_cut_ins(s: WorldState, tables: LaneTables) -> None:
     lane whatever the gaps: ahead, alongside or behind (a swerve into a car beside it cannot be avoided by
     any policy). It must be allowed to cross there (LaneTables.can_change) and never cuts into a lane that
     ends (the merge's on-ramp). Runs on the positions at the start of the step, before the traffic moves.
+    static: see sim/selection.py.
     """
     ego_lane, ego_x = s.lane[:, :1], s.x[:, :1]
     cand = ((s.lane - ego_lane).abs() == 1) & ~s.trigger_used & (s.adversarial_prob > 0)
     cand &= (s.target_lane == s.lane) & ~s.forced
     cand &= (s.x - ego_x).abs() - VEHICLE_LENGTH_M < s.trigger_offset
     cand[:, 0] = False
-    bb, ii = cand.nonzero(as_tuple=True)
-    if bb.numel() == 0:
+    bb, ii, sel = entries(cand, static)
+    if none_left(bb, sel):
         return
     el = ego_lane[bb, 0]
     keep = tables.can_change(s.x[bb, ii], s.lane[bb, ii], el) & ~torch.isfinite(tables.drop_end_m[el])
-    if bool(keep.any()):
-        _draw_and_force(s, bb[keep], ii[keep], el[keep], S_PAPER_ADV)
+    if sel is not None or bool(keep.any()):
+        sel, bb, ii, el = narrow(sel, keep, bb, ii, el)
+        _draw_and_force(s, bb, ii, el, S_PAPER_ADV, sel)
 

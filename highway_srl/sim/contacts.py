@@ -16,7 +16,7 @@ from highway_srl.sim.traffic_model import Neighbours
 EDGE_TOLERANCE_M = 0.5  # how far the ego's side may reach past the road's outer edge before it is a collision
 
 
-def sv_contacts(s: WorldState, near: torch.Tensor, leader: torch.Tensor) -> torch.Tensor:
+def sv_contacts(s: WorldState, near: torch.Tensor, leader: torch.Tensor, static: bool = False) -> torch.Tensor:
     """Distinct overlapping SV-SV pairs per env (B,) long.
 
     Two boxes that overlap share a point, which lies in some lane band that both footprints reach, so each
@@ -24,10 +24,13 @@ def sv_contacts(s: WorldState, near: torch.Tensor, leader: torch.Tensor) -> torc
     then overlap one of them too). Checking every vehicle against its leader in each lane it occupies (at
     the start of the step, with a margin wider than a step's lateral travel) finds every contact. Only the
     pairs that were within CONTACT_GAP_M (bumper to bumper) at the start of the step can touch by its end;
-    they go through the exact box test.
+    they go through the exact box test. static: test every (lane, vehicle) pair under the mask instead of
+    listing the near ones (see sim/selection.py); the same count.
     """
     b, n = s.x.shape
     near[:, :, 0] = False
+    if static:
+        return _sv_contacts_static(s, near, leader)
     kk, bb, ii = near.nonzero(as_tuple=True)
     count = torch.zeros(b, dtype=torch.long, device=s.x.device)
     jj = leader[kk, bb, ii]
@@ -43,7 +46,22 @@ def sv_contacts(s: WorldState, near: torch.Tensor, leader: torch.Tensor) -> torc
     return count.index_add_(0, key // (n * n), torch.ones_like(key))
 
 
-def ego_collision(s: WorldState, road: Road, tables: LaneTables, nb: Neighbours) -> torch.Tensor:
+def _sv_contacts_static(s: WorldState, near: torch.Tensor, leader: torch.Tensor) -> torch.Tensor:
+    """sv_contacts over every (lane k, vehicle i) with its leader j: a pair (i, j) found in several lanes
+    counts once, in the first lane it is found in (the compact form's torch.unique)."""
+    n = s.x.shape[1]
+    keep = near & (leader > 0) & (leader < n)
+    j = leader.clamp(max=n - 1)
+    g = lambda t: torch.gather(t.expand_as(j), 2, j)  # noqa: E731
+    hit = keep & boxes_overlap(s.x, s.y, s.heading, g(s.x), g(s.y), g(s.heading))
+    first = hit.clone()
+    for k in range(1, hit.shape[0]):
+        for q in range(k):
+            first[k] &= ~(hit[q] & (leader[q] == leader[k]))
+    return first.sum((0, 2))
+
+
+def ego_collision(s: WorldState, road: Road, tables: LaneTables, nb: Neighbours, static: bool = False) -> torch.Tensor:
     """The ego overlaps an SV, runs into a lane end, or crosses a boundary it may not cross (B,) bool.
 
     Any SV the ego overlaps is its leader or follower (at the start of the step) in a lane both occupy,
@@ -57,7 +75,7 @@ def ego_collision(s: WorldState, road: Road, tables: LaneTables, nb: Neighbours)
     g = lambda t: torch.gather(t, 1, j)  # noqa: E731
     xj, yj = g(x_pad), g(y_pad)
     near = ((xj - s.x[:, :1]).abs() < CONTACT_REACH_M) & ((yj - s.y[:, :1]).abs() < CONTACT_REACH_M) & (j < n)
-    if s.x.device.type != "cpu" or bool(near.any()):  # on CPU a branch is free and contacts are rare
+    if static or s.x.device.type != "cpu" or bool(near.any()):  # on CPU a branch is free and contacts are rare
         hit = (boxes_overlap(s.x[:, :1], s.y[:, :1], s.heading[:, :1], xj, yj, g(h_pad)) & near).any(1)
     else:
         hit = torch.zeros_like(near[:, 0])

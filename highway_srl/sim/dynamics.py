@@ -15,6 +15,7 @@ from highway_srl.sim.contacts import sv_contacts
 from highway_srl.sim.ego import ego_control
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.road import Road
+from highway_srl.sim.selection import entries, none_left, put
 from highway_srl.sim.spawn import Layout
 from highway_srl.sim.state import WorldState
 from highway_srl.sim.traffic_model import CENTRED_M, Neighbours
@@ -40,18 +41,18 @@ SETTLED_M, SETTLED_RAD = 1e-3, 1e-3  # a car this close to its lane's centre lin
 
 
 def advance(s: WorldState, road: Road, tables: LaneTables, layout: Layout, target_lane, target_speed,
-            adversarial) -> tuple[torch.Tensor, Neighbours]:
+            adversarial, static: bool = False) -> tuple[torch.Tensor, Neighbours]:
     """Move every vehicle by one step in place.
 
     Returns the number of SV-SV contacts per env (B,) long and the neighbours found at the start of the
-    step (which ego_collision uses)."""
-    nb = traffic_model.find_neighbours(s, road)
-    accel, near = traffic_model.car_following(s, road, tables, nb)
-    accel = traffic_model.yield_to_mergers(s, road, nb, accel)
-    traffic_model.abort_unsafe_changes(s, road, nb, accel)
-    traffic_model.mobil_lane_changes(s, road, tables, nb, accel)
+    step (which ego_collision uses). static: static shapes and no host reads (see sim/selection.py)."""
+    nb = traffic_model.find_neighbours(s, road, static)
+    accel, near = traffic_model.car_following(s, road, tables, nb, static)
+    accel = traffic_model.yield_to_mergers(s, road, nb, accel, static)
+    traffic_model.abort_unsafe_changes(s, road, nb, accel, static)
+    traffic_model.mobil_lane_changes(s, road, tables, nb, accel, static)
     if adversarial:
-        adversary.safe_distance_cut_ins(s, tables, nb)
+        adversary.safe_distance_cut_ins(s, tables, nb, static)
     ego_control(s, tables, target_lane, target_speed, accel)
 
     v_new = (s.v + accel * DT_S).clamp(min=0.0)
@@ -59,19 +60,19 @@ def advance(s: WorldState, road: Road, tables: LaneTables, layout: Layout, targe
     v_mid = 0.5 * (s.v + v_new)
     x_old = s.x.clone()
     s.x.add_(v_mid * DT_S)  # along the lane; corrected below for the few cars that are turned
-    lateral(s, road, v_mid, x_old)
+    lateral(s, road, v_mid, x_old, static)
     s.v.copy_(v_new)
-    return sv_contacts(s, near, nb.leader), nb
+    return sv_contacts(s, near, nb.leader, static), nb
 
 
-def lateral(s: WorldState, road: Road, v_mid: torch.Tensor, x_old: torch.Tensor) -> None:
+def lateral(s: WorldState, road: Road, v_mid: torch.Tensor, x_old: torch.Tensor, static: bool = False) -> None:
     """Lateral tracking and the lateral part of the integration, for the cars that are not settled in
     their lane (a changing car, one off its lane's centre, or one not aligned with the road); a car that
     comes within SETTLED_M / SETTLED_RAD of its lane's centre line is snapped onto it."""
     w = road.lane_width_m
     active = (s.target_lane != s.lane) | (s.heading != 0) | (s.y != s.lane.float() * w)
-    bb, ii = active.nonzero(as_tuple=True)
-    if bb.numel() == 0:
+    bb, ii, sel = entries(active, static)
+    if none_left(bb, sel):
         return
     y, h, v, tgt = s.y[bb, ii], s.heading[bb, ii], s.v[bb, ii], s.target_lane[bb, ii]
     y_t = tgt.float() * w
@@ -95,7 +96,7 @@ def lateral(s: WorldState, road: Road, v_mid: torch.Tensor, x_old: torch.Tensor)
     y = torch.where(settled, y_t, y)
     h = torch.where(settled, 0.0, h)
     lane = torch.round(y / w).long().clamp(0, road.num_lanes - 1)
-    s.x[bb, ii], s.y[bb, ii], s.heading[bb, ii], s.lane[bb, ii] = x, y, h, lane
     centred = (lane == tgt) & ((y - y_t).abs() < CENTRED_M)
-    s.forced[bb, ii] = s.forced[bb, ii] & ~centred
+    for t, value in ((s.x, x), (s.y, y), (s.heading, h), (s.lane, lane), (s.forced, s.forced[bb, ii] & ~centred)):
+        put(t, bb, ii, value, sel)
 

@@ -80,7 +80,7 @@ def _entry_speed(v, v0, v_behind, v_ahead):
     return torch.where(torch.isnan(v_ahead), torch.maximum(out, v0), torch.minimum(out, v_ahead))
 
 
-def recycle(s: WorldState, road: Road, layout: Layout, level: TrafficLevel) -> None:
+def recycle(s: WorldState, road: Road, layout: Layout, level: TrafficLevel, static: bool = False) -> None:
     """Keep the flow centred on the ego (a closed loop): an SV that leaves the window [ego - reach,
     ego + reach] (reach = window + margin), or the map at the off-ramp's end, re-enters at the other end.
 
@@ -94,16 +94,23 @@ def recycle(s: WorldState, road: Road, layout: Layout, level: TrafficLevel) -> N
     drive off while the queue behind is full) it enters at the other end if that entry is free this step,
     else it waits a step. Lanes are occupied by own lane, target lane and footprint, as in the traffic
     model; cars that are themselves leaving do not count.
+
+    Eager, only the envs with a leaver are computed; static (no host read), every env is, and nothing
+    moves in those without one (see sim/selection.py).
     """
     reach = layout.window_m + layout.margin_m
     ahead_out, behind_out, to_back, to_front = _leavers(s, road, reach)
-    envs = (to_back | to_front).any(1).nonzero().squeeze(1)
-    if envs.numel() == 0:
-        return
+    if static:
+        envs = None
+        sub = lambda t: t  # noqa: E731
+    else:
+        envs = (to_back | to_front).any(1).nonzero().squeeze(1)
+        if envs.numel() == 0:
+            return
+        sub = lambda t: t.index_select(0, envs)  # noqa: E731
     w = road.lane_width_m
     need = VEHICLE_LENGTH_M + level.headway_m[0]
     hide = D_MAX_M + VEHICLE_LENGTH_M
-    sub = lambda t: t.index_select(0, envs)  # noqa: E731
     x, v, y, h, lane, tgt = sub(s.x), sub(s.v), sub(s.y), sub(s.heading), sub(s.lane), sub(s.target_lane)
     v0 = sub(s.v0)
     ex = x[:, 0]
@@ -129,7 +136,13 @@ def recycle(s: WorldState, road: Road, layout: Layout, level: TrafficLevel) -> N
     x = torch.where(go_back, xb, torch.where(go_front, xf, x))
     v = torch.where(go_back, _entry_speed(v, v0, vb_behind, vb_ahead),
                     torch.where(go_front, _entry_speed(v, v0, vf_behind, vf_ahead), v))
-    put = lambda name, value: getattr(s, name).index_copy_(0, envs, value)  # noqa: E731
+    def put(name: str, value: torch.Tensor) -> None:
+        t = getattr(s, name)
+        if envs is None:
+            t.copy_(value)
+        else:
+            t.index_copy_(0, envs, value)
+
     put("x", x)
     put("v", v)
     put("y", torch.where(moving, new_lane.float() * w, y))

@@ -60,10 +60,11 @@ def occupancy(y, half_width, lane, target_lane, num_lanes: int, lane_width_m: fl
     return torch.stack(rows)
 
 
-def sorted_order(x: torch.Tensor, order: torch.Tensor | None = None) -> torch.Tensor:
+def sorted_order(x: torch.Tensor, order: torch.Tensor | None = None, static: bool = False) -> torch.Tensor:
     """(B, N) long: the stable ascending order of x along dim 1 (ties by index), reusing `order` in the
-    envs where it still holds, so that only envs where vehicles passed each other are sorted again."""
-    if order is None:
+    envs where it still holds, so that only envs where vehicles passed each other are sorted again.
+    static: every env is sorted (the same order: a stable order is unique), without a host read."""
+    if order is None or static:
         return torch.sort(x, dim=1, stable=True).indices
     xs = x.gather(1, order)
     d = xs[:, 1:] - xs[:, :-1]

@@ -16,6 +16,7 @@ from highway_srl.constants import VEHICLE_LENGTH_M
 from highway_srl.sim.collision import CONTACT_GAP_M, front_x_in_band
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.road import Road
+from highway_srl.sim.selection import entries, narrow, none_left, put
 from highway_srl.sim.state import EXIT_INTENT, MERGE_INTENT, NO_INTENT, WorldState
 from highway_srl.sim.traffic import (
     ABORT_BRAKE_MPS2,
@@ -80,15 +81,15 @@ class Neighbours:
         return followers_of(self.behind_keys, self.rank, k, b, i)
 
 
-def find_neighbours(s: WorldState, road: Road) -> Neighbours:
+def find_neighbours(s: WorldState, road: Road, static: bool = False) -> Neighbours:
     occ = occupancy(s.y, approx_half_width(s.heading), s.lane, s.target_lane, road.num_lanes, road.lane_width_m)
-    s.order.copy_(sorted_order(s.x, s.order))
+    s.order.copy_(sorted_order(s.x, s.order, static))
     leader, occ_sorted = lane_leaders(occ, s.order)
     behind = follower_keys(occ_sorted, s.order)
     return Neighbours(occ, leader, pad(s.x, FAR_M), pad(s.v, 0.0), behind, inverse_order(s.order))
 
 
-def car_following(s: WorldState, road: Road, tables: LaneTables, nb: Neighbours):
+def car_following(s: WorldState, road: Road, tables: LaneTables, nb: Neighbours, static: bool = False):
     """IDM acceleration (B, N) of every vehicle: the most restrictive over the leaders in all lanes it
     occupies (own, target, or reached by its footprint) and the ends of dropped lanes it is in; and the
     (K, B, N) mask of vehicles that are close enough to their leader there to touch it within the step."""
@@ -103,18 +104,18 @@ def car_following(s: WorldState, road: Road, tables: LaneTables, nb: Neighbours)
         near.append(nb.occ[k] & (gap < CONTACT_GAP_M))
     for k in range(road.num_lanes):
         if math.isfinite(tables.drop_end[k]):
-            _lane_end(s, tables, k, nb, free, accel)
+            _lane_end(s, tables, k, nb, free, accel, static)
     return accel, torch.stack(near)
 
 
-def _lane_end(s: WorldState, tables: LaneTables, k: int, nb: Neighbours, free, accel) -> None:
+def _lane_end(s: WorldState, tables: LaneTables, k: int, nb: Neighbours, free, accel, static: bool) -> None:
     """The end of dropped lane k is a standing obstacle for every vehicle that occupies the lane (its
     footprint included), measured from the foremost point of the part of the car still in the lane; one
     that is leaving the lane (changing lanes, or already centred on another) may creep up to
     WALL_JAM_CHANGING_M of it instead of its jam distance. Updates accel in place."""
     end, w = tables.drop_end[k], tables.lane_width_m
-    bb, ii = (nb.occ[k] & (s.x < end + VEHICLE_LENGTH_M)).nonzero(as_tuple=True)
-    if bb.numel() == 0:
+    bb, ii, sel = entries(nb.occ[k] & (s.x < end + VEHICLE_LENGTH_M), static)
+    if none_left(bb, sel):
         return
     x, y, h, v, s0 = s.x[bb, ii], s.y[bb, ii], s.heading[bb, ii], s.v[bb, ii], s.s0[bb, ii]
     front = front_x_in_band(x, y, h, (k - 0.5) * w, (k + 0.5) * w)
@@ -123,10 +124,11 @@ def _lane_end(s: WorldState, tables: LaneTables, k: int, nb: Neighbours, free, a
     leaving = (s.target_lane[bb, ii] != s.lane[bb, ii]) | (s.lane[bb, ii] != k)
     s0 = torch.where(leaving, s0.clamp(max=WALL_JAM_CHANGING_M), s0)
     a_w = idm_accel_fast(free[bb, ii], v, s0, torch.where(use, wall, FAR_M), torch.zeros_like(v))
-    accel[bb, ii] = torch.minimum(accel[bb, ii], a_w)
+    put(accel, bb, ii, torch.minimum(accel[bb, ii], a_w), sel)
 
 
-def yield_to_mergers(s: WorldState, road: Road, nb: Neighbours, accel: torch.Tensor) -> torch.Tensor:
+def yield_to_mergers(s: WorldState, road: Road, nb: Neighbours, accel: torch.Tensor,
+                     static: bool = False) -> torch.Tensor:
     """Cooperative merging: an SV in the mainline lane beside a dropped lane also follows the nearest car
     ahead of it in the dropped lane while that car is in the merging zone and has to merge (an SV with
     merge intent, or the ego), if it can do so braking at most YIELD_BRAKE_MPS2; otherwise it goes on and
@@ -141,26 +143,26 @@ def yield_to_mergers(s: WorldState, road: Road, nb: Neighbours, accel: torch.Ten
         cand = (s.lane == k - 1) & (s.target_lane == k - 1) & must_merge
         cand &= (gather_lead(s.lane, j, -1) == k) & (jx >= z0) & (jx < z1)
         cand[:, 0] = False
-        bb, ii = cand.nonzero(as_tuple=True)
-        if bb.numel() == 0:
+        bb, ii, sel = entries(cand, static)
+        if none_left(bb, sel):
             continue
-        jj = j[bb, ii]
+        jj = j[bb, ii].clamp(max=s.x.shape[1] - 1)  # a candidate's leader is a vehicle (its lane is k)
         free = idm_free_term(s.v[bb, ii], s.v0[bb, ii])
         a_y = idm_accel_fast(free, s.v[bb, ii], s.s0[bb, ii], jx[bb, ii] - s.x[bb, ii] - VEHICLE_LENGTH_M, s.v[bb, jj])
-        accel[bb, ii] = torch.where(a_y >= -YIELD_BRAKE_MPS2, torch.minimum(accel[bb, ii], a_y), accel[bb, ii])
+        put(accel, bb, ii, torch.where(a_y >= -YIELD_BRAKE_MPS2, torch.minimum(accel[bb, ii], a_y), accel[bb, ii]), sel)
     return accel
 
 
-def abort_unsafe_changes(s: WorldState, road: Road, nb: Neighbours, accel: torch.Tensor) -> None:
+def abort_unsafe_changes(s: WorldState, road: Road, nb: Neighbours, accel: torch.Tensor, static: bool = False) -> None:
     """An SV whose change is not yet committed (its side not yet over the boundary) returns to its lane
     when the change turned unsafe: too little room, or it or its new follower would have to brake hard
     (accel: the IDM accelerations of this step, in which the new follower already reacts to the changer).
     A committed change goes on: the new follower sees the changer in its lane and yields."""
-    bb, ii = (s.target_lane != s.lane).nonzero(as_tuple=True)
+    bb, ii, sel = entries(s.target_lane != s.lane, static)
     keep = (ii > 0) & ~s.forced[bb, ii]
     keep &= (s.y[bb, ii] - s.lane[bb, ii].float() * road.lane_width_m).abs() < COMMITTED_M
-    bb, ii = bb[keep], ii[keep]
-    if bb.numel() == 0:
+    sel, bb, ii = narrow(sel, keep, bb, ii)
+    if none_left(bb, sel):
         return
     tk = s.target_lane[bb, ii]
     nl, nf = nb.leader[tk, bb, ii], nb.follower(tk, bb, ii)
@@ -173,7 +175,8 @@ def abort_unsafe_changes(s: WorldState, road: Road, nb: Neighbours, accel: torch
     nf_limit = torch.where(nf == 0, -ABORT_EGO_BRAKE_MPS2, -ABORT_BRAKE_MPS2)
     unsafe = (g_front < ABORT_GAP_M) | (g_back < ABORT_GAP_M) | (a_target < -ABORT_BRAKE_MPS2)
     unsafe |= accel_pad[bb, nf] < nf_limit
-    s.target_lane[bb[unsafe], ii[unsafe]] = s.lane[bb[unsafe], ii[unsafe]]
+    sel, bb, ii = narrow(sel, unsafe, bb, ii)
+    put(s.target_lane, bb, ii, s.lane[bb, ii], sel)
 
 
 def _take(t: torch.Tensor, flat: torch.Tensor) -> torch.Tensor:
@@ -199,19 +202,20 @@ def _deciders(s: WorldState, road: Road):
     return idx, decide, lane, intent, on_ramp_merge
 
 
-def mobil_lane_changes(s: WorldState, road: Road, tables: LaneTables, nb: Neighbours, accel: torch.Tensor) -> None:
+def mobil_lane_changes(s: WorldState, road: Road, tables: LaneTables, nb: Neighbours, accel: torch.Tensor,
+                       static: bool = False) -> None:
     """MOBIL decisions (incentive + safety) of the SVs due to decide this step; mandatory merge/exit first.
 
     Only one vehicle in DECISION_PERIOD is due each step (a strided slice), and only those that may change
     at all (centred, lane-changing style or a ramp intent, fast enough) are evaluated, both directions at
-    once.
+    once. static: every decision slot is evaluated under the mask (see sim/selection.py).
     """
     b_envs, n = s.x.shape
     k_lanes = road.num_lanes
     idx, decide, lane, intent, on_ramp_merge = _deciders(s, road)
-    bb, jj = decide.nonzero(as_tuple=True)
+    bb, jj, sel = entries(decide, static)
     m = bb.numel()
-    if m == 0:
+    if none_left(bb, sel):
         return
     ii = idx[bb, jj]
     flat1 = bb * n + ii
@@ -253,6 +257,13 @@ def mobil_lane_changes(s: WorldState, road: Road, tables: LaneTables, nb: Neighb
     left, right = gain[:m], gain[m:]
     best = torch.where(right > left, toc[m:], toc[:m])  # ties go left, as MOBIL prefers overtaking lanes
     change = torch.maximum(left, right) > -math.inf
-    s.target_lane.view(-1).index_copy_(0, flat1, torch.where(change, best, lane1))
+    if sel is None:
+        s.target_lane.view(-1).index_copy_(0, flat1, torch.where(change, best, lane1))
+    else:
+        # padding slots repeat index N - 1: they write to a scratch element past the end instead
+        dest = torch.where(sel, flat1, b_envs * n)
+        out = torch.cat([s.target_lane.view(-1), s.target_lane.new_zeros(1)])
+        out.index_copy_(0, dest, torch.where(change & sel, best, lane1))
+        s.target_lane.view(-1).copy_(out[:-1])
 
 

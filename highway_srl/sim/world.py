@@ -6,7 +6,7 @@ Python loops over envs or vehicles (only over the at most three lanes).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import torch
 
@@ -16,6 +16,7 @@ from highway_srl.constants import (
     STYLE_NAMES,
     TRAFFIC_LEVELS,
     VEHICLE_LENGTH_M,
+    TrafficLevel,
 )
 from highway_srl.scenarios import scenario_spec
 from highway_srl.sim import dynamics
@@ -80,6 +81,11 @@ class World:
     seed, not on the batch size or the device's other envs. adversary: which group-3 cut-ins run when
     adversarial is True, "mild" (ours: ahead of the ego, with room, beyond its safe distance) or "paper"
     (§4.3 as printed); both in sim/adversary.py.
+
+    compile: run step and reset as compiled static-shape graphs (see compiled_step): False (eager, the
+    reference), True (torch.compile; on CUDA with CUDA graphs, mode "reduce-overhead") or a torch.compile
+    mode. The compiled step follows eager to float rounding (tests/sim/test_compile.py); eager runs
+    reproduce bit for bit. On the CPU it needs a C++ compiler.
     """
 
     def __init__(
@@ -94,6 +100,7 @@ class World:
         num_vehicles: int | None = None,
         max_steps: int = EPISODE_STEPS,
         adversary: str = "mild",
+        compile: bool | str = False,
     ):
         scenario_spec(scenario)  # raises the one-line error naming the scenarios
         if traffic not in TRAFFIC_LEVELS:
@@ -129,12 +136,16 @@ class World:
         self.state: WorldState = spawn(
             self.road, level, self.layout, seeds.to(self.device), torch.zeros_like(seeds).to(self.device), self.style
         )
+        self._compiled = compiled_step(self, compile) if compile else None
 
     # ------------------------------------------------------------------ episodes
     @torch.inference_mode()
     def reset(self, mask: torch.Tensor | None = None) -> None:
         """Start new episodes in the envs where mask (B,) is True (all envs if None)."""
         s = self.state
+        if self._compiled is not None and mask is not None:
+            self._compiled.reset(mask)
+            return
         idx = torch.arange(self.num_envs, device=self.device) if mask is None else mask.nonzero().squeeze(1)
         if idx.numel() == 0:
             return
@@ -149,19 +160,43 @@ class World:
         state is updated in place, so its tensors stay ordinary ones that callers may edit. The returned
         events are inference tensors: read them, combine them, or clone them before editing in place."""
         s = self.state
-        target_lane = torch.as_tensor(target_lane, device=self.device).long().reshape(self.num_envs)
-        target_speed = torch.as_tensor(target_speed, device=self.device, dtype=torch.float32).reshape(self.num_envs)
-        if self.adversarial and self.adversary == "paper":
-            paper_cut_ins(s, self._lane_tables)
-        sv_collisions, neighbours = dynamics.advance(s, self.road, self._lane_tables, self.layout, target_lane,
-                                                     target_speed, self.adversarial and self.adversary == "mild")
-        collision = ego_collision(s, self.road, self._lane_tables, neighbours)
-        success, failure = stage_events(s, self.road)
-        recycle(s, self.road, self.layout, self.level)
-        s.t += 1
-        terminated = collision | failure | (success & self.road.spec.success_terminates)
-        truncated = (s.t >= self.max_steps) & ~terminated
-        return StepEvents(collision, success, failure, terminated, truncated, sv_collisions)
+        target_lane, target_speed = self._commands(target_lane, target_speed)
+        if self._compiled is not None:
+            return self._compiled.step(target_lane, target_speed)
+        return step_state(s, self.road, self._lane_tables, self.layout, self.level, target_lane, target_speed,
+                          self.active_adversary, self.max_steps)
+
+    @property
+    def active_adversary(self) -> str | None:
+        """The group-3 adversary that runs ("mild" or "paper"), None in nominal traffic."""
+        return self.adversary if self.adversarial else None
+
+    def _commands(self, target_lane, target_speed) -> tuple[torch.Tensor, torch.Tensor]:
+        """The ego's commands as (B,) long lanes and (B,) float32 speeds on the world's device."""
+        lane = torch.as_tensor(target_lane, device=self.device).long().reshape(self.num_envs)
+        return lane, torch.as_tensor(target_speed, device=self.device, dtype=torch.float32).reshape(self.num_envs)
+
+    @torch.inference_mode()
+    def step_and_reset(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
+        """step, then new episodes where it terminated or truncated (the events are the step's): one graph
+        when compiled; eager, a reset only when some env is done (a host read)."""
+        if self._compiled is not None:
+            return self._compiled.step_and_reset(*self._commands(target_lane, target_speed))
+        events = self.step(target_lane, target_speed)
+        done = events.terminated | events.truncated
+        if bool(done.any()):
+            self.reset(done)
+        return events
+
+    def spawn_where(self, s: WorldState, mask: torch.Tensor) -> WorldState:
+        """State s with fresh episodes (episode + 1) in the envs where mask (B,) is True: a masked select
+        of a full spawn, static shapes (the compact reset spawns only the masked envs; same values)."""
+        fresh = spawn(self.road, self.level, self.layout, s.seed, s.episode + 1, self.style)
+        return WorldState(**{
+            f.name: torch.where(mask.reshape((-1,) + (1,) * (getattr(s, f.name).dim() - 1)),
+                                getattr(fresh, f.name), getattr(s, f.name))
+            for f in fields(s)
+        })
 
     # ------------------------------------------------------------------ queries
     @property
@@ -192,6 +227,92 @@ class World:
         """SV1..SV4 of the ego: nearest front/rear vehicle in current_lane and adjacent_lane (B,) within d_max
         (see ego_neighbours)."""
         return ego_neighbours(self.state, self.road, self._lane_tables, current_lane, adjacent_lane, d_max)
+
+
+def step_state(s: WorldState, road: Road, tables: LaneTables, layout: Layout, level: TrafficLevel,
+               target_lane: torch.Tensor, target_speed: torch.Tensor, adversary: str | None, max_steps: int,
+               static: bool = False) -> StepEvents:
+    """One step of every env of s, in place (see World.step); adversary: see World.active_adversary.
+    static: static shapes, no host reads (the form torch.compile takes in one graph; sim/selection.py)."""
+    if adversary == "paper":
+        paper_cut_ins(s, tables, static)
+    sv_collisions, neighbours = dynamics.advance(s, road, tables, layout, target_lane, target_speed,
+                                                 adversary == "mild", static)
+    collision = ego_collision(s, road, tables, neighbours, static)
+    success, failure = stage_events(s, road)
+    recycle(s, road, layout, level, static)
+    s.t += 1
+    terminated = collision | failure | (success & road.spec.success_terminates)
+    truncated = (s.t >= max_steps) & ~terminated
+    return StepEvents(collision, success, failure, terminated, truncated, sv_collisions)
+
+
+class compiled_step:  # noqa: N801 (used like a function: compiled_step(world, mode))
+    """World.step and World.reset(mask) of one world as torch.compile graphs of the static step.
+
+    The graphs are pure (state tensors in, new state tensors out); the results are copied into the
+    world's state tensors, which therefore stay the same objects that callers may hold. Under CUDA graphs
+    the graph's outputs are overwritten by its next replay, hence the copy and the events' clone."""
+
+    MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
+
+    def __init__(self, world: World, how: bool | str):
+        """how: True (the device's default: CUDA graphs on CUDA, C++ kernels on the CPU), a torch.compile
+        mode, or a backend name ("eager", "aot_eager": graph capture without code generation, for checks)."""
+        mode, backend = None, "inductor"
+        if how is True:
+            mode = "reduce-overhead" if world.device.type == "cuda" else None
+        elif how in self.MODES:
+            mode = how
+        else:
+            backend = how
+        self.world = world
+        self.cuda_graphs = world.device.type == "cuda" and backend == "inductor" and mode == "reduce-overhead"
+        opts = dict(fullgraph=True, mode=mode, backend=backend, dynamic=False)
+        # torch.compile is lazy: only the graphs a caller uses are compiled
+        self._step = torch.compile(self.pure_step, **opts)
+        self._reset = torch.compile(self.pure_reset, **opts)
+        self._step_reset = torch.compile(self.pure_step_reset, **opts)
+
+    def pure_step(self, state: tuple, target_lane: torch.Tensor, target_speed: torch.Tensor):
+        w = self.world
+        s = WorldState(*(t.clone() for t in state))
+        ev = step_state(s, w.road, w._lane_tables, w.layout, w.level, target_lane, target_speed,
+                        w.active_adversary, w.max_steps, static=True)
+        return astuple_shallow(s), astuple_shallow(ev)
+
+    def pure_reset(self, state: tuple, mask: torch.Tensor):
+        return astuple_shallow(self.world.spawn_where(WorldState(*state), mask))
+
+    def pure_step_reset(self, state: tuple, target_lane: torch.Tensor, target_speed: torch.Tensor):
+        new, ev = self.pure_step(state, target_lane, target_speed)
+        events = StepEvents(*ev)
+        return self.pure_reset(new, events.terminated | events.truncated), ev
+
+    def _call(self, graph, *args):
+        """Run a compiled graph on the world's state; its new state is copied into the state's tensors."""
+        if self.cuda_graphs:
+            torch.compiler.cudagraph_mark_step_begin()
+        out = graph(astuple_shallow(self.world.state), *args)
+        new, ev = out if graph is not self._reset else (out, None)
+        torch._foreach_copy_(list(astuple_shallow(self.world.state)), list(new))
+        if ev is not None:
+            return StepEvents(*(e.clone() for e in ev) if self.cuda_graphs else ev)
+        return None
+
+    def step(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
+        return self._call(self._step, target_lane, target_speed)
+
+    def step_and_reset(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
+        return self._call(self._step_reset, target_lane, target_speed)
+
+    def reset(self, mask: torch.Tensor) -> None:
+        self._call(self._reset, mask.reshape(self.world.num_envs))
+
+
+def astuple_shallow(obj) -> tuple:
+    """A dataclass's fields as a tuple of the same objects (dataclasses.astuple would deep-copy tensors)."""
+    return tuple(getattr(obj, f.name) for f in fields(obj))
 
 
 def ego_neighbours(s: WorldState, road: Road, tables: LaneTables, current_lane: torch.Tensor,

@@ -1,0 +1,194 @@
+"""The device check of issue 13: one call that tests and benches the GPU and writes one JSON file.
+
+    python scripts/device_check.py                 # on a CUDA machine, under 8 minutes on an H100
+    python scripts/device_check.py --cpu-smoke     # the same parts at toy sizes on the CPU (the test suite runs it)
+
+Parts, in order: the GPU tests; the simulator eager at 4,096 / 65,536 / 262,144 envs (two-lane C) and
+level F, merge, adversarial exit at 65,536; training MoE-RM-SRL at 1 and 10 seeds (16 envs each) at
+Algorithm 1's update rate (one gradient step per env step); the simulator compiled (CUDA graphs), same
+sizes. Each part runs in its own process with a time limit from the overall budget, so a failure, a hang
+or a part that does not fit still leaves the others' figures and the JSON. Projections: the paper run
+(5e5 env steps, one seed) and the whole study (43 jobs x 10 seeds x 5e5 steps, the 10 seeds batched).
+
+Needs only torch, numpy and pytest (no gymnasium: the GPU machine has none).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER_STEPS = 500_000
+STUDY_JOBS, STUDY_SEEDS = 43, 10
+SIM_SIZES = [("two-lane", "C", False, 4096), ("two-lane", "C", False, 65_536), ("two-lane", "C", False, 262_144),
+             ("two-lane", "F", False, 65_536), ("merge", "C", False, 65_536), ("exit", "C", True, 65_536)]
+TRAIN_ENVS = 16
+
+
+def plan(smoke: bool) -> list[dict]:
+    """The parts, each {name, cap_s, args} (args for --part)."""
+    parts = [{"name": "gpu-tests", "cap_s": 150, "args": ["--part", "tests"]}]
+    sizes = [(sc, tr, adv, 8) for sc, tr, adv, _ in SIM_SIZES[-1:]] if smoke else SIM_SIZES
+    steps = "3" if smoke else "50"
+    for compiled in (False, True):
+        if compiled:  # training before the compiled sims: compiling may eat the rest of the budget
+            for seeds in (1, 10):
+                parts.append({"name": f"train-moe-rm-srl-{seeds}-seeds", "cap_s": 90,
+                              "args": ["--part", "train", "--seeds", str(seeds), "--steps", "3" if smoke else "40"]})
+        for sc, tr, adv, envs in sizes:
+            name = f"sim-{sc}-{tr}{'-adv' if adv else ''}-{envs}-{'compiled' if compiled else 'eager'}"
+            args = ["--part", "sim", "--scenario", sc, "--traffic", tr, "--envs", str(envs), "--steps", steps]
+            args += ["--adversarial"] * adv + ["--compiled"] * compiled
+            parts.append({"name": name, "cap_s": 200 if compiled else 60, "args": args})
+    return parts
+
+
+def run_part(args) -> dict:
+    """One part, in this process; returns its figures."""
+    device = "cpu" if args.cpu_smoke else "cuda"
+    if args.part == "tests":
+        tests = ["tests/sim/test_gpu.py", "tests/sim/test_compile.py"]
+        cmd = [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", *tests]
+        if args.cpu_smoke:
+            cmd += ["-k", "graph_and_no_break and two-lane"]  # a token run of the machinery
+        done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+        tail = done.stdout.strip().splitlines()[-1:] or [done.stderr.strip()[-300:]]
+        return {"returncode": done.returncode, "summary": tail[0]}
+    if args.part == "sim":
+        from highway_srl.experiments.bench import bench_sim
+
+        how = ("eager" if args.cpu_smoke else True) if args.compiled else False  # smoke: capture, no codegen
+        return bench_sim(args.scenario, args.traffic, args.envs, args.steps, device, args.adversarial,
+                         warmup=2 if args.cpu_smoke else 10, compile=how)
+    if args.part == "train":
+        return bench_training(args.seeds, args.steps, device, args.cpu_smoke)
+    raise ValueError(f"unknown part {args.part!r}")
+
+
+def bench_training(seeds: int, steps: int, device: str, smoke: bool) -> dict:
+    """Env-steps/s of MoE-RM-SRL training, TRAIN_ENVS envs per seed, at one gradient step per env step."""
+    import torch
+
+    from highway_srl.agents.dqn import DQNConfig
+    from highway_srl.agents.trainer import TrainConfig, Trainer
+
+    rate_field = {"replay_ratio": 1.0} if "replay_ratio" in TrainConfig.__dataclass_fields__ else \
+        {"updates_per_step": TRAIN_ENVS}  # gradient steps per acting member per vector step
+    batch = 8 if smoke else 256
+    cfg = TrainConfig(method="moe-rm-srl", envs=TRAIN_ENVS, seeds=tuple(range(seeds)), device=device, steps=10**9,
+                      dqn=DQNConfig(learning_starts=0, batch_size=batch), **rate_field)
+    trainer = Trainer(cfg)
+    t0 = time.perf_counter()
+    while int(trainer.replay.size.max()) < batch:  # updates run from the first timed step
+        trainer.step()
+    for _ in range(2):
+        trainer.step()
+    sync = torch.cuda.synchronize if trainer.device.type == "cuda" else (lambda: None)
+    sync()
+    t1 = time.perf_counter()
+    for _ in range(steps):
+        trainer.step()
+    sync()
+    wall = time.perf_counter() - t1
+    rate = steps * TRAIN_ENVS * seeds / wall
+    return {"method": "moe-rm-srl", "envs": TRAIN_ENVS, "seeds": seeds, "vector_steps": steps, "wall_s": round(wall, 3),
+            "setup_s": round(t1 - t0, 3), "env_steps_per_s": round(rate, 1), **rate_field, "batch_size": batch}
+
+
+def projections(results: dict) -> dict:
+    """Minutes for the paper run and hours for the study, from the training figures (None where missing)."""
+    one = results.get("train-moe-rm-srl-1-seeds", {}).get("result", {}).get("env_steps_per_s")
+    ten = results.get("train-moe-rm-srl-10-seeds", {}).get("result", {}).get("env_steps_per_s")
+    out = {"paper_run_steps": PAPER_STEPS, "study": f"{STUDY_JOBS} jobs x {STUDY_SEEDS} seeds x {PAPER_STEPS} steps"}
+    out["paper_run_min"] = round(PAPER_STEPS / one / 60, 2) if one else None
+    out["ten_seeds_min"] = round(STUDY_SEEDS * PAPER_STEPS / ten / 60, 2) if ten else None
+    out["ten_seeds_cost_vs_one"] = round(out["ten_seeds_min"] / out["paper_run_min"], 2) if one and ten else None
+    out["study_h"] = round(STUDY_JOBS * STUDY_SEEDS * PAPER_STEPS / ten / 3600, 2) if ten else None
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--out", default=None, help="JSON path (default: $OUT/device_check.json, else ./device_check.json)")
+    p.add_argument("--cpu-smoke", action="store_true", help="toy sizes on the CPU: checks the script, not a device")
+    p.add_argument("--budget-s", type=float, default=450.0, help="wall-clock budget of all parts together")
+    p.add_argument("--part", help=argparse.SUPPRESS)
+    p.add_argument("--part-out", help=argparse.SUPPRESS)
+    for name in ("--scenario", "--traffic"):
+        p.add_argument(name, help=argparse.SUPPRESS)
+    for name in ("--envs", "--steps", "--seeds"):
+        p.add_argument(name, type=int, help=argparse.SUPPRESS)
+    p.add_argument("--adversarial", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--compiled", action="store_true", help=argparse.SUPPRESS)
+    args = p.parse_args(argv)
+    sys.path.insert(0, str(ROOT))
+
+    if args.part:
+        result = run_part(args)
+        Path(args.part_out).write_text(json.dumps(result))
+        return 0
+
+    if not args.cpu_smoke:
+        import torch
+
+        if not torch.cuda.is_available():
+            print("device_check: no CUDA device here; use --cpu-smoke to check the script on the CPU", file=sys.stderr)
+            return 2
+    default_dir = os.environ.get("OUT") or "."
+    out = Path(args.out or Path(default_dir) / "device_check.json")
+    start = time.perf_counter()
+    report = {"started": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "cpu_smoke": args.cpu_smoke,
+              "commit": _commit(), "parts": {}}
+    env = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
+    with tempfile.TemporaryDirectory() as tmp:
+        for part in plan(args.cpu_smoke):
+            left = args.budget_s - (time.perf_counter() - start)
+            limit = min(part["cap_s"], left)
+            if limit < 10:
+                report["parts"][part["name"]] = {"status": "skipped", "why": "budget spent"}
+                continue
+            part_out = Path(tmp) / f"{part['name']}.json"
+            cmd = [sys.executable, __file__, *part["args"], "--part-out", str(part_out)]
+            cmd += ["--cpu-smoke"] * args.cpu_smoke
+            t0 = time.perf_counter()
+            try:
+                done = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=limit)
+                entry = {"status": "ok" if done.returncode == 0 else "failed"}
+                if done.returncode == 0:
+                    entry["result"] = json.loads(part_out.read_text())
+                else:
+                    entry["error"] = done.stderr.strip()[-1500:]
+            except subprocess.TimeoutExpired:
+                entry = {"status": "timeout", "limit_s": round(limit, 1)}
+            except Exception as err:  # noqa: BLE001 (one failure must still leave the JSON)
+                entry = {"status": "failed", "error": f"{type(err).__name__}: {err}"}
+            entry["wall_s"] = round(time.perf_counter() - t0, 2)
+            report["parts"][part["name"]] = entry
+            print(f"{part['name']}: {entry['status']} ({entry['wall_s']} s)", file=sys.stderr, flush=True)
+    report["projections"] = projections(report["parts"])
+    report["wall_s"] = round(time.perf_counter() - start, 1)
+    text = json.dumps(report, indent=1)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp_path = out.with_name(out.name + ".tmp")
+    tmp_path.write_text(text)
+    tmp_path.replace(out)  # atomic: a reader never sees half a file
+    print(text)
+    return 0
+
+
+def _commit() -> str | None:
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip() or None
+    except OSError:
+        return None
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,104 @@
+"""The static-shape step (the form torch.compile takes) and its compiled graph follow the eager reference."""
+
+from __future__ import annotations
+
+from dataclasses import fields
+
+import pytest
+import torch
+
+from highway_srl.sim import World
+from highway_srl.sim.policies import idm_ego
+from highway_srl.sim.world import astuple_shallow, step_state
+
+VARIANTS = [(sc, adv) for sc in ("two-lane", "multi-lane", "merge", "exit") for adv in (False, True)]
+ENVS = 8
+
+
+def _commands(world: World, t: int):
+    """The IDM ego, with a random lane command every few steps so that refused and accepted changes occur."""
+    lane, speed = idm_ego(world)
+    if t % 5 == 0:
+        g = torch.Generator().manual_seed(t)
+        lane = torch.randint(0, world.road.num_lanes, (world.num_envs,), generator=g)
+    return lane, speed
+
+
+def _copy_state(dst: World, src: World) -> None:
+    for f in fields(src.state):
+        getattr(dst.state, f.name).copy_(getattr(src.state, f.name))
+
+
+def _assert_close_state(a: World, b: World, where: str) -> None:
+    for f in fields(a.state):
+        x, y = getattr(a.state, f.name), getattr(b.state, f.name)
+        if x.is_floating_point():
+            assert torch.allclose(x, y, rtol=1e-5, atol=1e-4), (where, f.name, float((x - y).abs().max()))
+        else:
+            assert torch.equal(x, y), (where, f.name)
+
+
+@pytest.mark.parametrize("scenario,adversarial", VARIANTS)
+def test_static_step_is_bit_identical_to_the_compact_step_in_eager(scenario, adversarial):
+    ref = World(scenario, "D", adversarial=adversarial, num_envs=ENVS, seed=11)
+    static = World(scenario, "D", adversarial=adversarial, num_envs=ENVS, seed=11)
+    for t in range(300):
+        lane, speed = _commands(ref, t)
+        e_ref = ref.step(lane, speed)
+        with torch.inference_mode():
+            e_static = step_state(static.state, static.road, static._lane_tables, static.layout, static.level, lane,
+                                  speed, adversarial, static.max_steps, static=True)
+            done = e_ref.terminated | e_ref.truncated
+            ref.reset(done)
+            static.state = static.spawn_where(static.state, done)
+        for f in fields(e_ref):
+            assert torch.equal(getattr(e_ref, f.name), getattr(e_static, f.name)), (t, f.name)
+        for f in fields(ref.state):
+            assert torch.equal(getattr(ref.state, f.name), getattr(static.state, f.name)), (t, f.name)
+
+
+@pytest.mark.parametrize("scenario,adversarial", VARIANTS)
+def test_compiled_step_is_one_graph_and_no_break(scenario, adversarial):
+    world = World(scenario, "C", adversarial=adversarial, num_envs=ENVS, seed=0, compile="eager")
+    lane, speed = world._commands(world.ego_lane, torch.full((ENVS,), 8.0))
+    explain = torch._dynamo.explain(world._compiled.pure_step_reset)
+    with torch.inference_mode():
+        out = explain(astuple_shallow(world.state), lane, speed)
+    assert (out.graph_count, out.graph_break_count) == (1, 0), out.break_reasons
+
+
+@pytest.mark.parametrize("scenario,adversarial", VARIANTS)
+def test_captured_graph_follows_eager(scenario, adversarial):
+    """torch.compile's capture (aot_eager: the functional graph, run eagerly; 0.15 s a step, so 40 steps
+    here: the static form itself is checked over 300 steps above), from eager's state each step."""
+    _follow(scenario, adversarial, "aot_eager", steps=40)
+
+
+@pytest.mark.slow
+def test_inductor_compiled_step_follows_eager_to_float_rounding():
+    """The generated C++ kernels (minutes of compilation on a cold cache, hence slow)."""
+    _follow("merge", True, True, steps=200)
+
+
+def _follow(scenario: str, adversarial: bool, how, steps: int) -> None:
+    ref = World(scenario, "D", adversarial=adversarial, num_envs=ENVS, seed=5)
+    comp = World(scenario, "D", adversarial=adversarial, num_envs=ENVS, seed=5, compile=how)
+    for t in range(steps):
+        lane, speed = _commands(ref, t)
+        _copy_state(comp, ref)  # from the same state each step: a rounding difference cannot grow into chaos
+        e_ref = ref.step_and_reset(lane, speed)
+        e_comp = comp.step_and_reset(lane, speed)
+        for f in fields(e_ref):
+            assert torch.equal(getattr(e_ref, f.name), getattr(e_comp, f.name)), (t, f.name)
+        _assert_close_state(ref, comp, f"step {t}")
+
+
+def test_eager_seeds_reproduce_bit_for_bit_with_compile_off():
+    runs = []
+    for _ in range(2):
+        world = World("exit", "D", adversarial=True, num_envs=ENVS, seed=21)
+        for t in range(120):
+            world.step_and_reset(*_commands(world, t))
+        runs.append(world.state)
+    for f in fields(runs[0]):
+        assert torch.equal(getattr(runs[0], f.name), getattr(runs[1], f.name)), f.name
