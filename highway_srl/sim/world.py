@@ -267,6 +267,9 @@ class compiled_step:  # noqa: N801 (used like a function: compiled_step(world, m
         else:
             backend = how
         self.world = world
+        # each World adds cache entries for these methods' code (its road, level and self are guarded on);
+        # dynamo's default limit of 8 would refuse the ninth compiled World of a process under fullgraph
+        torch._dynamo.config.recompile_limit = max(torch._dynamo.config.recompile_limit, 256)
         self.cuda_graphs = world.device.type == "cuda" and backend == "inductor" and mode == "reduce-overhead"
         opts = dict(fullgraph=True, mode=mode, backend=backend, dynamic=False)
         # torch.compile is lazy: only the graphs a caller uses are compiled

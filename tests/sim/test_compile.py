@@ -11,7 +11,14 @@ from highway_srl.sim import World
 from highway_srl.sim.policies import idm_ego
 from highway_srl.sim.world import astuple_shallow, step_state
 
-VARIANTS = [(sc, adv) for sc in ("two-lane", "multi-lane", "merge", "exit") for adv in (False, True)]
+# (scenario, adversary): None nominal, "mild" or "paper" (World's adversary)
+VARIANTS = [(sc, adv) for sc in ("two-lane", "multi-lane", "merge", "exit") for adv in (None, "mild")]
+VARIANTS += [("two-lane", "paper"), ("merge", "paper")]
+
+
+def _world(scenario, adversary, traffic="D", seed=11, **kw) -> World:
+    return World(scenario, traffic, adversarial=adversary is not None, adversary=adversary or "mild",
+                 num_envs=ENVS, seed=seed, **kw)
 ENVS = 8
 
 
@@ -40,8 +47,7 @@ def _assert_close_state(a: World, b: World, where: str) -> None:
 
 @pytest.mark.parametrize("scenario,adversarial", VARIANTS)
 def test_static_step_is_bit_identical_to_the_compact_step_in_eager(scenario, adversarial):
-    ref = World(scenario, "D", adversarial=adversarial, num_envs=ENVS, seed=11)
-    static = World(scenario, "D", adversarial=adversarial, num_envs=ENVS, seed=11)
+    ref, static = _world(scenario, adversarial), _world(scenario, adversarial)
     for t in range(300):
         lane, speed = _commands(ref, t)
         e_ref = ref.step(lane, speed)
@@ -59,7 +65,7 @@ def test_static_step_is_bit_identical_to_the_compact_step_in_eager(scenario, adv
 
 @pytest.mark.parametrize("scenario,adversarial", VARIANTS)
 def test_compiled_step_is_one_graph_and_no_break(scenario, adversarial):
-    world = World(scenario, "C", adversarial=adversarial, num_envs=ENVS, seed=0, compile="eager")
+    world = _world(scenario, adversarial, traffic="C", seed=0, compile="eager")
     lane, speed = world._commands(world.ego_lane, torch.full((ENVS,), 8.0))
     explain = torch._dynamo.explain(world._compiled.pure_step_reset)
     with torch.inference_mode():
@@ -77,12 +83,11 @@ def test_captured_graph_follows_eager(scenario, adversarial):
 @pytest.mark.slow
 def test_inductor_compiled_step_follows_eager_to_float_rounding():
     """The generated C++ kernels (minutes of compilation on a cold cache, hence slow)."""
-    _follow("merge", True, True, steps=200)
+    _follow("merge", "mild", True, steps=200)
 
 
-def _follow(scenario: str, adversarial: bool, how, steps: int) -> None:
-    ref = World(scenario, "D", adversarial=adversarial, num_envs=ENVS, seed=5)
-    comp = World(scenario, "D", adversarial=adversarial, num_envs=ENVS, seed=5, compile=how)
+def _follow(scenario: str, adversarial: str | None, how, steps: int) -> None:
+    ref, comp = _world(scenario, adversarial, seed=5), _world(scenario, adversarial, seed=5, compile=how)
     for t in range(steps):
         lane, speed = _commands(ref, t)
         _copy_state(comp, ref)  # from the same state each step: a rounding difference cannot grow into chaos
@@ -96,7 +101,7 @@ def _follow(scenario: str, adversarial: bool, how, steps: int) -> None:
 def test_eager_seeds_reproduce_bit_for_bit_with_compile_off():
     runs = []
     for _ in range(2):
-        world = World("exit", "D", adversarial=True, num_envs=ENVS, seed=21)
+        world = _world("exit", "paper", seed=21)
         for t in range(120):
             world.step_and_reset(*_commands(world, t))
         runs.append(world.state)
