@@ -40,7 +40,7 @@ def _cmd_render(args) -> int:
     paths = render_episode(
         run=args.run, scenario=args.scenario, traffic=args.traffic, adversarial=args.adversarial,
         policy=args.policy, seed=args.seed, out=Path(args.out), steps=args.steps, backend=args.backend,
-        progress=not args.quiet,
+        progress=not args.quiet, profile=args.profile, adversary=args.adversary,
     )
     for p in paths:
         print(p)
@@ -71,7 +71,7 @@ def _cmd_bench(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from highway_srl import commands  # the training / evaluation / study commands, argument types
-    from highway_srl.commands import non_negative, positive
+    from highway_srl.commands import adversary_name, non_negative, positive, profile_name
 
     parser = Parser(prog="highway-srl", description="Safe RL of autonomous highway driving (MoE-RM-SRL).")
     parser.add_argument("--version", action="version", version=f"highway-srl {__version__}")
@@ -85,6 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=non_negative, default=0)
     p.add_argument("--steps", type=positive, default=320)
     p.add_argument("--out", default="episode.gif", help="GIF path; the PNG goes beside it")
+    p.add_argument("--profile", type=profile_name, default=None, help="control profile (default: the run's own)")
+    p.add_argument("--adversary", type=adversary_name, default=None,
+                   help="cut-ins with --adversarial (default: the run's own; paper without a run)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_render)
 

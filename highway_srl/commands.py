@@ -82,6 +82,32 @@ def positive_float(text: str) -> float:
     return value
 
 
+def non_negative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative number, got {text!r}") from None
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative number, got {text!r}")
+    return value
+
+
+def profile_name(text: str) -> str:
+    from highway_srl.rules import PROFILES
+
+    if text not in PROFILES:
+        raise argparse.ArgumentTypeError(f"unknown profile {text!r}; choose one of {', '.join(PROFILES)}")
+    return text
+
+
+def adversary_name(text: str) -> str:
+    from highway_srl.sim.world import ADVERSARIES
+
+    if text not in ADVERSARIES:
+        raise argparse.ArgumentTypeError(f"unknown adversary {text!r}; choose one of {', '.join(ADVERSARIES)}")
+    return text
+
+
 def _seeds(text: str) -> tuple[int, ...]:
     try:
         seeds = tuple(int(s) for s in text.split(",") if s.strip())
@@ -105,10 +131,12 @@ def train_config(args):
     dqn = DQNConfig(total_steps=args.steps)
     if args.learning_starts is not None:
         dqn.learning_starts = args.learning_starts
+    legacy = args.updates_per_step is not None  # the old per-vector-step count, kept for old scripts
     return TrainConfig(method=args.method, scenario=args.scenario, traffic=args.traffic, adversarial=args.adversarial,
                        steps=args.steps, envs=args.envs, seeds=_seeds(args.seeds), device=args.device,
-                       updates_per_step=args.updates_per_step, share_transitions=args.share_transitions, dqn=dqn,
-                       options=options)
+                       profile=args.profile, adversary=args.adversary,
+                       replay_ratio=None if legacy else args.replay_ratio, updates_per_step=args.updates_per_step,
+                       share_transitions=args.share_transitions, dqn=dqn, options=options)
 
 
 def _cmd_train(args) -> int:
@@ -173,7 +201,8 @@ def _cmd_evaluate(args) -> int:
     try:
         report = evaluate_run(args.run, scenario=args.scenario, traffics=args.traffic, episodes=args.episodes,
                               adversarial=True if args.adversarial else None, device=args.device,
-                              backend=args.backend, out=out, seed=args.seed, progress=progress)
+                              backend=args.backend, out=out, seed=args.seed, progress=progress,
+                              profile=args.profile, adversary=args.adversary)
     finally:
         if bar is not None:
             bar.close()
@@ -278,7 +307,17 @@ def add_parsers(sub, scenario_args) -> None:
     p.add_argument("--envs", type=positive, default=16, help="environments per seed stepped together")
     p.add_argument("--seeds", default="0", help="comma-separated seeds trained together, e.g. 0,1,2,3")
     p.add_argument("--device", default="cpu")
-    p.add_argument("--updates-per-step", type=positive, default=4, help="gradient steps per acting expert per vector step")
+    p.add_argument("--profile", type=profile_name, default="paper",
+                   help="control profile of the rule layer: paper (Eqs. 31-35 as printed, the default) or safe "
+                   "(our additions: abort unsafe changes, brake while changing, change window, straddle, 1 m margin)")
+    p.add_argument("--adversary", type=adversary_name, default="paper",
+                   help="group-3 cut-ins with --adversarial: paper (§4.3 as printed, the default) or mild (ours)")
+    rate = p.add_mutually_exclusive_group()
+    rate.add_argument("--replay-ratio", type=non_negative_float, default=1.0,
+                      help="gradient steps (batch n_b) per environment step, each for the member that acted there "
+                      "(Algorithm 1: 1, the default; 16 envs x 1 = 16 updates per vector step)")
+    rate.add_argument("--updates-per-step", type=positive, default=None,
+                      help="legacy rate: gradient steps per acting member per vector step (before --replay-ratio)")
     p.add_argument("--learning-starts", type=non_negative, default=None, help="env steps before the first update")
     p.add_argument("--share-transitions", action="store_true",
                    help="store each transition in every expert whose action set holds the executed action")
@@ -302,6 +341,9 @@ def add_parsers(sub, scenario_args) -> None:
     p.add_argument("--backend", default="ours", help="ours, sumo or highway-env")
     p.add_argument("--device", default="cpu")
     p.add_argument("--seed", type=non_negative, default=0, help="offset of the evaluation episodes' seeds")
+    p.add_argument("--profile", type=profile_name, default=None, help="control profile (default: the run's own)")
+    p.add_argument("--adversary", type=adversary_name, default=None,
+                   help="cut-ins of adversarial episodes (default: the run's own)")
     p.add_argument("--out", default=None, help="JSON file (default: RUN/eval-BACKEND.json); never replaced "
                    "without --overwrite")
     p.add_argument("--overwrite", action="store_true", help="replace the --out file if it exists")

@@ -9,9 +9,11 @@ shared. docs/paper-notes.md says exactly what each is and which choices the pape
   rm-rl        mapped  A* (4)   ε-greedy argmax Q                             r_RM (the paper's)
   mp-rl        mapped  A* (4)   highest-Q action that passes Table 1          speed, -320 on collision
   lm-rl        mapped  A* (4)   argmax Q_r - λ Q_c, λ by dual ascent          speed, -320; cost: u2/u4, collision
-  et-rl        mapped  A* (4)   ε-greedy Q; the rule expert takes over unsafe speed, -320 on collision
+  et-rl        mapped  A* (4)   ε-greedy Q; the IDM expert takes over below speed, -320 on collision
+                                a 2 s time to collision (not Table 1)
   rule-based   mapped  A* (4)   IDM + MOBIL-style, first safe action          (logged: r_RM); no learning
-  ablations of moe-rm-srl: no_mapping (raw view, A*), no_moe (one DQN, no gate: rm-rl), no_rm (speed reward)
+  ablations of moe-rm-srl: no_mapping (raw view, A*, nothing gated), no_moe (one DQN, no gate: rm-rl),
+  no_rm (speed reward)
 
 "raw" is `rules.raw.RawSafetyLayer` (no ID/rule/action/control mapping), "mapped" is `rules.SafetyLayer`.
 """
@@ -22,13 +24,14 @@ import torch
 
 from highway_srl.agents.dqn import DQNLearner, UpdateStats
 from highway_srl.agents.ensemble import ensemble_forward
-from highway_srl.agents.methods import Decision, Method
+from highway_srl.agents.methods import DEFAULT_PROFILE, Decision, Method
 from highway_srl.agents.moe import grouped_q, seed_of_env
 from highway_srl.agents.rule_based import rule_based_action, rule_based_decision
 from highway_srl.constants import EPISODE_STEPS
 from highway_srl.rules import OBS_NAMES, SafetyLayer, choose_second, scenario_reward
 from highway_srl.rules.raw import FIVE_ACTIONS, RawSafetyLayer
 from highway_srl.rules.reward_machine import U2, U4
+from highway_srl.rules.safe_actions import LANE_CHANGE
 
 EGO_VX_COLUMN = OBS_NAMES.index("ego_vx")  # v_x / v_max (every view normalises it the same way)
 
@@ -38,6 +41,9 @@ COLLISION_COST = float(EPISODE_STEPS)  # a collision costs as much as violating 
 LAMBDA_LR = 0.01  # dual step per unit of episode cost above the limit
 LAMBDA_INIT = 0.0
 LAMBDA_MAX = 100.0
+
+# ET-RL (docs/paper-notes.md, "ET-RL"): the expert takes over below this time to collision
+TAKEOVER_TTC_S = 2.0
 
 
 def speed_reward(scenario: str, next_obs: torch.Tensor, events, flags) -> torch.Tensor:
@@ -96,15 +102,15 @@ class SingleDQN(_Options, Method):
     reward_kind = "speed"  # "speed": speed_reward; "rm": the paper's r_RM reward
     members_per_seed = 1
 
-    def __init__(self, scenario, seeds, options):
-        super().__init__(scenario, seeds, options)
+    def __init__(self, scenario, seeds, options, profile=DEFAULT_PROFILE):
+        super().__init__(scenario, seeds, options, profile)
         self._check_options()
         self.num_members = seeds * self.members_per_seed
 
     def make_layer(self, road):
         if self.view == "raw":
-            return RawSafetyLayer(road, five_actions=self.out_dim == 5)
-        return SafetyLayer(road, **self.layer_options)
+            return RawSafetyLayer(road, five_actions=self.out_dim == 5, profile=self.profile)
+        return SafetyLayer(road, profile=self.profile, **self.layer_options)
 
     def action_mask(self) -> torch.Tensor:
         return torch.ones(self.num_members, self.out_dim, dtype=torch.bool)
@@ -168,21 +174,53 @@ class MPRL(SingleDQN):
     name, view, out_dim, shielded, reward_kind = "mp-rl", "mapped", 4, True, "speed"
 
 
+def time_to_collision(gap_m: torch.Tensor, closing_mps: torch.Tensor) -> torch.Tensor:
+    """Seconds until a bumper gap (any shape, m) closes at closing_mps (> 0: closing); +inf when not closing,
+    0 when the gap is already gone."""
+    ttc = gap_m.clamp(min=0.0) / closing_mps.clamp(min=1e-6)
+    return torch.where(closing_mps > 0, ttc, torch.full_like(ttc, float("inf")))
+
+
+def takeover_trigger(model, ego_vx: torch.Tensor, proposal: torch.Tensor, ttc_s: float = TAKEOVER_TTC_S
+                     ) -> torch.Tensor:
+    """(B,) bool: ET-RL's danger criterion, independent of Table 1: the time to collision with the leader
+    in the ego's lane (SV1) is below ttc_s; while the agent asks for or continues a lane change, also with
+    the target lane's leader (SV2, the ego closing on it) or follower (SV4, closing on the ego)."""
+    gaps, vx = model.gaps_m, model.vehicles.vx
+    ttc1 = time_to_collision(gaps[:, 0], ego_vx - vx[:, 0])
+    ttc2 = time_to_collision(gaps[:, 1], ego_vx - vx[:, 1])
+    ttc4 = time_to_collision(gaps[:, 3], vx[:, 3] - ego_vx)
+    changing = (proposal == LANE_CHANGE) | (model.t_id != model.lanes.c_id)
+    lateral = torch.where(changing, torch.minimum(ttc2, ttc4), torch.full_like(ttc1, float("inf")))
+    return torch.minimum(ttc1, lateral) < ttc_s
+
+
 class ETRL(SingleDQN):
-    """Expert takeover (Wang et al. 2023): the DQN proposes (ε-greedy over A*); when Table 1 rejects the
-    proposal, the rule-based driver's action executes instead, and the DQN learns from what executed."""
+    """Expert takeover (§4.2: "activates a rule-based expert (implemented via the IDM) to override unsafe
+    behaviors"): the DQN proposes (ε-greedy over A*) and executes, unless the takeover trigger fires (a time
+    to collision below TAKEOVER_TTC_S, `takeover_trigger`); then the rule-based IDM driver's action executes
+    instead, and the DQN learns from what executed. Table 1 is not consulted for the trigger: a proposal it
+    forbids runs when nothing is close. Option takeover_ttc_s: the threshold (s)."""
 
     name, view, out_dim, shielded, reward_kind = "et-rl", "mapped", 4, False, "speed"
+    # the layer holds a change under way (the SafetyLayer default); the expert is told so, or it would ask
+    # for LaneChange near the boundary, which Eq. 35 turns back into the current lane
+    layer_options = {"hold_lane_change": True}
+    allowed_options = frozenset({"takeover_ttc_s"})
+
+    def __init__(self, scenario, seeds, options, profile=DEFAULT_PROFILE):
+        super().__init__(scenario, seeds, options, profile)
+        self.ttc_s = float(self.options.get("takeover_ttc_s", TAKEOVER_TTC_S))
 
     def decide(self, learner, step, explore, generator) -> Decision:
         d = super().decide(learner, step, explore, generator)
         model = step.select(d.use_second)
-        ego_v = torch.hypot(step.snapshot.ego_vx, step.snapshot.ego_vy)
-        accepted = model.mask.gather(1, d.action.unsqueeze(1)).squeeze(1)
-        self.takeover = ~accepted  # (B,) bool, for analysis and tests
-        hold = bool(self.layer_options.get("hold_lane_change", False))
-        action = torch.where(accepted, d.action, rule_based_action(model, ego_v, self.scenario, hold))
-        return Decision(action, d.member, d.use_second)
+        snap = step.snapshot
+        ego_v = torch.hypot(snap.ego_vx, snap.ego_vy)
+        # (B,) the DQN's proposal and whether the expert overrode it, for analysis and tests
+        self.proposal, self.takeover = d.action, takeover_trigger(model, snap.ego_vx, d.action, self.ttc_s)
+        expert = rule_based_action(model, ego_v, self.scenario, self.layer_options["hold_lane_change"])
+        return Decision(torch.where(self.takeover, expert, d.action), d.member, d.use_second)
 
 
 class LMRL(SingleDQN):
@@ -201,8 +239,8 @@ class LMRL(SingleDQN):
     uses_cost = True
     allowed_options = frozenset({"cost_limit", "lambda_lr", "lambda_init"})
 
-    def __init__(self, scenario, seeds, options):
-        super().__init__(scenario, seeds, options)
+    def __init__(self, scenario, seeds, options, profile=DEFAULT_PROFILE):
+        super().__init__(scenario, seeds, options, profile)
         self.cost_limit = float(self.options.get("cost_limit", COST_LIMIT))
         self.lambda_lr = float(self.options.get("lambda_lr", LAMBDA_LR))
         self.lam = torch.full((seeds,), float(self.options.get("lambda_init", LAMBDA_INIT)))
@@ -283,8 +321,8 @@ class RuleBased(_Options, Method):
     trains = False
     layer_options = {"hold_lane_change": True}
 
-    def __init__(self, scenario, seeds, options):
-        super().__init__(scenario, seeds, options)
+    def __init__(self, scenario, seeds, options, profile=DEFAULT_PROFILE):
+        super().__init__(scenario, seeds, options, profile)
         self._check_options()
         self.num_members = seeds
 
@@ -307,6 +345,6 @@ class Manual(Method):
 
     name = "manual"
 
-    def __init__(self, scenario, seeds, options):
+    def __init__(self, scenario, seeds, options, profile=DEFAULT_PROFILE):
         raise ValueError(f"method 'manual' is a person at the keyboard: run `highway-srl play --scenario {scenario} "
                          "--traffic C --out FOLDER`; its episodes.jsonl enters the same tables")

@@ -15,7 +15,9 @@ from highway_srl.agents.dqn import DQNLearner, UpdateStats
 from highway_srl.agents.gating import EXPERT_NAMES, expert_action_mask
 from highway_srl.agents.moe import MoEPolicy, seed_of_env
 from highway_srl.agents.replay import ExpertReplay
-from highway_srl.rules import ACTIONS, SafetyLayer, choose_second, scenario_reward
+from highway_srl.rules import ACTIONS, SafetyLayer, choose_second, control_profile, scenario_reward
+
+DEFAULT_PROFILE = "paper"  # the paper's control mapping (Eqs. 31-35 as printed) is the reproduction's default
 
 
 @dataclass
@@ -26,22 +28,25 @@ class Decision:
 
 
 class Method:
-    """Base class with the MoE-RM-SRL defaults for reward, storage and updates."""
+    """Base class with the MoE-RM-SRL defaults for reward, storage and updates.
+
+    profile: the control profile of every rule layer the method makes (rules.PROFILES: "paper", "safe")."""
 
     name = "base"
     out_dim = 4
     uses_cost = False
     layer_options: dict = {}
 
-    def __init__(self, scenario: str, seeds: int, options: dict):
-        self.scenario, self.seeds, self.options = scenario, seeds, dict(options)
+    def __init__(self, scenario: str, seeds: int, options: dict, profile: str = DEFAULT_PROFILE):
+        control_profile(profile)  # one-line error naming the profiles
+        self.scenario, self.seeds, self.options, self.profile = scenario, seeds, dict(options), profile
 
     num_members: int = 1
     action_names: tuple[str, ...] = ACTIONS  # what Decision.action indexes (5-action baselines: FIVE_ACTIONS)
 
     def make_layer(self, road):
         """The rule layer this method observes and acts through (trainer, evaluate, render)."""
-        return SafetyLayer(road, **self.layer_options)
+        return SafetyLayer(road, profile=self.profile, **self.layer_options)
 
     def safe_mask(self, model) -> torch.Tensor:
         """(B, len(action_names)) bool: the safe actions of a model step, in action_names order."""
@@ -84,8 +89,8 @@ class MoERMSRL(Method):
 
     name = "moe-rm-srl"
 
-    def __init__(self, scenario, seeds, options):
-        super().__init__(scenario, seeds, options)
+    def __init__(self, scenario, seeds, options, profile=DEFAULT_PROFILE):
+        super().__init__(scenario, seeds, options, profile)
         self.policy = MoEPolicy(seeds)
         self.num_members = self.policy.members_per_seed * seeds
         self.member_names = list(EXPERT_NAMES)
@@ -93,14 +98,18 @@ class MoERMSRL(Method):
     def action_mask(self) -> torch.Tensor:
         return self.policy.action_mask()
 
+    def gate_mask(self, model) -> torch.Tensor:
+        """(B, 4) bool: the actions the sparse gate treats as safe (Table 1 on R*_SV)."""
+        return model.mask
+
     def decide(self, learner, step, explore, generator) -> Decision:
         use_second = None
         if bool(step.two_models.any()):
-            v1 = self.policy.value(learner, step.primary.obs, step.primary.mask)
-            v2 = self.policy.value(learner, step.second.obs, step.second.mask)
+            v1 = self.policy.value(learner, step.primary.obs, self.gate_mask(step.primary))
+            v2 = self.policy.value(learner, step.second.obs, self.gate_mask(step.second))
             use_second = choose_second(v1, v2, step.two_models)
         model = step.select(use_second)
-        action, member = self.policy.act(learner, model.obs, model.mask, explore, generator)
+        action, member = self.policy.act(learner, model.obs, self.gate_mask(model), explore, generator)
         return Decision(action, member, use_second)
 
     def store(self, replay, d, obs, reward, next_obs, done, cost, share=False):

@@ -8,19 +8,22 @@ numbers needed for finished episodes and for choosing which members to update.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 
 import torch
 
 from highway_srl.agents.checkpoint import policy_tensors, split_policy_tensors
 from highway_srl.agents.dqn import DQNConfig, DQNLearner, UpdateLog
-from highway_srl.agents.methods import Method
+from highway_srl.agents.methods import DEFAULT_PROFILE, Method
 from highway_srl.agents.registry import make_method
 from highway_srl.agents.replay import ExpertReplay
 from highway_srl.agents.rollout import policy_step
 from highway_srl.constants import OBS_DIM
+from highway_srl.rules import control_profile
 from highway_srl.rules.episode import EpisodeStats
 from highway_srl.sim import World
+from highway_srl.sim.world import ADVERSARIES
 from highway_srl.sim.state import WorldState
 
 
@@ -34,7 +37,12 @@ class TrainConfig:
     envs: int = 16  # environments per seed, stepped together
     seeds: tuple[int, ...] = (0,)
     device: str = "cpu"
-    updates_per_step: int = 4  # gradient steps per acting member per vector step (replay ratio = this / envs)
+    profile: str = DEFAULT_PROFILE  # control profile of the method's rule layer: "paper" or "safe" (rules.PROFILES)
+    adversary: str = "paper"  # group-3 cut-ins when adversarial: "paper" (§4.3 as printed) or "mild" (ours)
+    # Algorithm 1: gradient steps per environment step, each on the acting member (see Trainer.update_counts)
+    replay_ratio: float | None = 1.0
+    # configs written before replay_ratio: gradient steps per acting member per vector step (replay_ratio None)
+    updates_per_step: int | None = None
     share_transitions: bool = False  # store each transition in every expert whose set holds the action
     dqn: DQNConfig = field(default_factory=DQNConfig)
     options: dict = field(default_factory=dict)  # method-specific switches (ablations)
@@ -46,11 +54,17 @@ class TrainConfig:
 
     @staticmethod
     def from_dict(d: dict) -> "TrainConfig":
+        """A config from its dict; one written before a setting existed reads as what it ran under (LEGACY)."""
         known = set(TrainConfig.__dataclass_fields__)
         unknown = sorted(set(d) - known)
         if unknown:
             raise ValueError(f"unknown config keys {unknown}; allowed: {sorted(known)}")
         d = dict(d)
+        for key, value in LEGACY.items():
+            d.setdefault(key, value)
+        if "replay_ratio" not in d:  # before replay_ratio: updates_per_step (default then 4) per acting member
+            d["replay_ratio"] = None
+            d.setdefault("updates_per_step", 4)
         dqn = d.pop("dqn", {}) or {}
         unknown = sorted(set(dqn) - set(DQNConfig.__dataclass_fields__))
         if unknown:
@@ -61,35 +75,59 @@ class TrainConfig:
         return TrainConfig(dqn=DQNConfig(**dqn), **d)
 
 
+# What a config.json written before these keys existed ran under: the rule layer's profile was today's
+# "safe" one and the adversary today's "mild" one (replay_ratio: see from_dict).
+LEGACY = {"profile": "safe", "adversary": "mild"}
+
+
+def check_config(cfg: TrainConfig) -> None:
+    """ValueError in one line for settings no run can have."""
+    if cfg.steps < 1 or cfg.envs < 1:
+        raise ValueError("steps and envs must be positive")
+    control_profile(cfg.profile)
+    if cfg.adversary not in ADVERSARIES:
+        raise ValueError(f"unknown adversary {cfg.adversary!r}; choose one of {', '.join(ADVERSARIES)}")
+    if (cfg.replay_ratio is None) == (cfg.updates_per_step is None):
+        raise ValueError("set exactly one of replay_ratio (updates per env step) and updates_per_step (legacy)")
+    if cfg.replay_ratio is not None and not (cfg.replay_ratio >= 0 and math.isfinite(cfg.replay_ratio)):
+        raise ValueError(f"replay_ratio must be a non-negative number, got {cfg.replay_ratio!r}")
+    if cfg.updates_per_step is not None and cfg.updates_per_step < 0:
+        raise ValueError(f"updates_per_step must be non-negative, got {cfg.updates_per_step!r}")
+
+
 # resume/ keys of the episode accumulators (EpisodeStats field -> key), kept from the first checkpoints
 EPISODE_KEYS = {"ret": "episode.ep_return", "deploy": "episode.ep_deploy", "speed": "episode.ep_speed",
-                "length": "episode.ep_len", "collision": "episode.ep_collision", "success": "episode.ep_success"}
+                "length": "episode.ep_len", "collision": "episode.ep_collision", "success": "episode.ep_success",
+                "rm": "episode.ep_rm_return"}
+# keys a resume checkpoint may lack (written before they existed); the loader fills them in
+OPTIONAL_KEYS = frozenset({"episode.ep_rm_return"})
 
 
 @dataclass
 class Episode:
     seed: int
     step: int  # environment steps of this seed when the episode ended
-    ret: float  # training return (the reward the learner saw)
+    ret: float  # training return (the reward the learner saw, on the method's own scale)
     length: int
     collision: bool
     avg_speed: float
     success: bool
     deploy_reward: float  # the paper's R_r of the episode
+    rm_return: float  # the paper's RM reward summed over the episode: T_r on one scale for every method
 
 
 class Trainer:
     def __init__(self, config: TrainConfig):
         cfg = config
-        if cfg.steps < 1 or cfg.envs < 1 or cfg.updates_per_step < 0:
-            raise ValueError("steps and envs must be positive and updates_per_step non-negative")
+        check_config(cfg)
         self.config = cfg
         self.num_seeds = len(cfg.seeds)
         self.batch = cfg.envs * self.num_seeds
         env_seeds = [s * 1_000_003 + e for s in cfg.seeds for e in range(cfg.envs)]
-        self.world = World(cfg.scenario, cfg.traffic, cfg.adversarial, self.batch, cfg.device, env_seeds)
+        self.world = World(cfg.scenario, cfg.traffic, cfg.adversarial, self.batch, cfg.device, env_seeds,
+                           adversary=cfg.adversary)
         self.device = self.world.device
-        self.method: Method = make_method(cfg.method, cfg.scenario, self.num_seeds, cfg.options)
+        self.method: Method = make_method(cfg.method, cfg.scenario, self.num_seeds, cfg.options, cfg.profile)
         self.layer = self.method.make_layer(self.world.road)
         self.learner = DQNLearner(
             self.method.num_members, self.method.action_mask(), cfg.dqn, self.device, OBS_DIM, self.method.out_dim,
@@ -102,6 +140,8 @@ class Trainer:
         # acting member counts, slot 0 = the final fallback (no expert)
         self.usage = torch.zeros(self.method.num_members + 1, dtype=torch.long, device=self.device)
         self.update_log = UpdateLog(self.device)  # loss, Q, TD error since the last log (not checkpointed)
+        # replay_ratio: updates owed to each member, carried over while below one (fractional ratios)
+        self.update_credit = torch.zeros(self.method.num_members, dtype=torch.float64)
         # the deployment reward R_r is tracked for every method alike
         self.stats = EpisodeStats(cfg.scenario, self.batch, self.device, self.world.max_steps)
         self.current = self.layer.observe(self.world)
@@ -128,25 +168,46 @@ class Trainer:
         finished: list[Episode] = []
         if bool(done.any()):
             finished = [Episode(cfg.seeds[r.env // cfg.envs], self.env_steps, r.ret, r.length, r.collision,
-                                r.avg_speed, r.success, r.deploy_reward) for r in self.stats.finish(done)]
+                                r.avg_speed, r.success, r.deploy_reward, r.rm_return) for r in self.stats.finish(done)]
             world.reset(done)
             layer.reset(done)
             nxt = layer.observe(world)
         self.current = nxt
 
-        if self.env_steps >= cfg.dqn.learning_starts and cfg.updates_per_step > 0:
+        if self.env_steps >= cfg.dqn.learning_starts:
             self._update(decision.member)
         self.method.after_step(self, events, t.cost, done)
         return finished
 
+    def update_counts(self, acted: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(members (K,) long, updates (K,) long on the host): how many gradient steps each member takes
+        after a vector step in which acted (B,) names the member that acted in each env (-1: none).
+
+        Algorithm 1 takes one gradient step on a batch of n_b from the acting expert's buffer after every
+        environment step. With B envs a vector step is B environment steps, so member m gets
+        replay_ratio x (number of envs it acted in) steps: at ratio 1, B per vector step in all, spread over
+        the members exactly as B single-env steps of Algorithm 1 would spread them. The fallback (-1) owns
+        no transition and takes none (Algorithm 1's j != 0); a member whose buffer holds less than a batch
+        takes none yet and owes nothing. Fractions carry over in update_credit. Legacy configs
+        (updates_per_step): that many steps for every member that acted, whatever the count."""
+        cfg = self.config
+        members = self.method.members_to_update(acted, self.replay.size, cfg.dqn.batch_size).cpu()
+        if cfg.replay_ratio is None:
+            return members, torch.full_like(members, cfg.updates_per_step)
+        count = torch.bincount(acted[acted >= 0], minlength=self.method.num_members).cpu()
+        owed = self.update_credit[members] + cfg.replay_ratio * count[members].double()
+        updates = owed.floor()
+        self.update_credit[members] = owed - updates
+        return members, updates.long()
+
     def _update(self, acted: torch.Tensor) -> None:
         cfg = self.config
-        members = self.method.members_to_update(acted, self.replay.size, cfg.dqn.batch_size)
-        if members.numel() == 0:
-            return
-        for _ in range(cfg.updates_per_step):
-            batch = self.replay.sample(members, cfg.dqn.batch_size, self.gen)
-            self.update_log.add(self.method.update(self.learner, members, batch))
+        members, updates = self.update_counts(acted)
+        rounds = int(updates.max()) if updates.numel() else 0
+        for i in range(rounds):  # round i: every member owed more than i steps, one batch each
+            take = members[updates > i].to(self.device)
+            batch = self.replay.sample(take, cfg.dqn.batch_size, self.gen)
+            self.update_log.add(self.method.update(self.learner, take, batch))
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict[str, torch.Tensor]:
@@ -162,6 +223,8 @@ class Trainer:
         state["rng.trainer"] = self.gen.get_state()
         state["counters.vector_steps"] = torch.tensor([self.vector_steps])
         state["counters.usage"] = self.usage
+        if self.config.replay_ratio is not None:  # legacy configs (updates_per_step) carry no credit
+            state["counters.update_credit"] = self.update_credit
         return {k: v.detach().contiguous() for k, v in state.items()}
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
@@ -172,9 +235,11 @@ class Trainer:
         self.world.state = WorldState(**{k: v.to(self.device) for k, v in world.items()})
         self.layer.reset()
         self.layer.target_lane = state["layer.target_lane"].to(self.device)
-        self.stats.load_state_dict({name: state[key] for name, key in EPISODE_KEYS.items()})
+        self.stats.load_state_dict({name: state[key] for name, key in EPISODE_KEYS.items() if key in state})
         self.gen.set_state(state["rng.trainer"].cpu() if self.device.type == "cpu" else state["rng.trainer"])
         self.vector_steps = int(state["counters.vector_steps"][0])
         self.usage = state["counters.usage"].to(self.device).clone()
+        if "counters.update_credit" in state:
+            self.update_credit = state["counters.update_credit"].cpu().double().clone()
         self.method.load_state_dict(method)
         self.current = self.layer.observe(self.world)

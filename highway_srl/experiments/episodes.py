@@ -19,21 +19,25 @@ def _policy_driver(policy: str):
 
 
 def render_episode(run, scenario, traffic, adversarial, policy, seed, out: Path, steps: int = 320, backend: str = "ours",
-                   progress: bool = False):
+                   progress: bool = False, profile: str | None = None, adversary: str | None = None):
     """Drive one episode and write `out` (GIF) and a PNG of its middle frame beside it.
 
-    progress: a bar over the steps driven, then the frames drawn."""
+    progress: a bar over the steps driven, then the frames drawn. profile, adversary: None = the run's own
+    (without a run: the paper's adversary)."""
     if out.suffix.lower() != ".gif":
         raise ValueError(f"--out must end in .gif, got {str(out)!r}")
     if run is not None:
+        from highway_srl.agents.trainer import TrainConfig
         from highway_srl.experiments.policy import load_driver
+        from highway_srl.experiments.runs import run_config
 
-        driver, scenario = load_driver(run, scenario)
+        driver, scenario = load_driver(run, scenario, profile)
+        adversary = adversary or TrainConfig.from_dict(run_config(run)["config"]).adversary
     else:
         driver = _policy_driver(policy)
         scenario = scenario or "two-lane"
     if backend == "ours":
-        world = World(scenario, traffic, adversarial=adversarial, num_envs=1, seed=seed)
+        world = World(scenario, traffic, adversarial=adversarial, num_envs=1, seed=seed, adversary=adversary or "paper")
     else:
         from highway_srl.backends import make_backend
         from highway_srl.backends.drivers import idm_ego_backend

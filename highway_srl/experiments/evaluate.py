@@ -62,13 +62,15 @@ def summarise(results: dict[str, torch.Tensor], scenario: str) -> dict:
 
 def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, episodes: int = 100,
                  adversarial: bool | None = None, device: str = "cpu", backend: str = "ours", out: str | Path | None = None,
-                 seed: int = 0, progress=None) -> dict:
+                 seed: int = 0, progress=None, profile: str | None = None, adversary: str | None = None) -> dict:
     """progress(done, total), if given, is called as the work advances (vector steps on our simulator,
-    episodes on the others)."""
-    policy = load_policy(run, scenario, device)
+    episodes on the others). profile, adversary: None = the run's own (config.json; runs written before
+    these settings existed were trained under "safe" and "mild")."""
+    policy = load_policy(run, scenario, device, profile)
     cfg, method, learner = policy.config, policy.method, policy.learner
     scenario = cfg.scenario
     adversarial = cfg.adversarial if adversarial is None else adversarial
+    adversary = adversary or cfg.adversary
     traffics = list(traffics or [cfg.traffic])
     for t in traffics:
         if t not in TRAFFIC_LEVELS:
@@ -77,12 +79,13 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
         raise ValueError(f"episodes must be positive, got {episodes}")
     seeds = len(cfg.seeds)
     report = {"run": str(run), "method": cfg.method, "scenario": scenario, "adversarial": adversarial,
-              "backend": backend, "episodes_per_level": episodes, "trained_seeds": list(cfg.seeds), "levels": {},
+              "backend": backend, "episodes_per_level": episodes, "trained_seeds": list(cfg.seeds),
+              "profile": method.profile, "adversary": adversary, "levels": {},
               **provenance()}
     for i, traffic in enumerate(traffics):
         env_seeds = [EVAL_SEED_BASE + seed * 100_003 + e for _ in range(seeds) for e in range(episodes)]
         if backend == "ours":
-            world = World(scenario, traffic, adversarial, episodes * seeds, device, env_seeds)
+            world = World(scenario, traffic, adversarial, episodes * seeds, device, env_seeds, adversary=adversary)
             n = world.max_steps
             tick = None if progress is None else lambda t, i=i, n=n: progress(i * n + t, len(traffics) * n)
             results = run_episodes(world, method, learner, tick)

@@ -47,12 +47,13 @@ def read_model(run: str | Path, expect: dict | None = None) -> tuple[TrainConfig
     return cfg, tensors, meta
 
 
-def load_policy(run: str | Path, scenario: str | None = None, device: str = "cpu") -> Policy:
-    """The trained policy of a finished run; scenario, if given, must be the one it was trained on."""
+def load_policy(run: str | Path, scenario: str | None = None, device: str = "cpu", profile: str | None = None) -> Policy:
+    """The trained policy of a finished run; scenario, if given, must be the one it was trained on.
+    profile: the control profile its rule layer acts through (None: the run's own, config.json)."""
     cfg, tensors, meta = read_model(run)
     if scenario is not None and scenario != cfg.scenario:
         raise ValueError(f"run {str(run)!r} was trained on scenario {cfg.scenario!r}, not {scenario!r}")
-    method = make_method(cfg.method, cfg.scenario, len(cfg.seeds), cfg.options)
+    method = make_method(cfg.method, cfg.scenario, len(cfg.seeds), cfg.options, profile or cfg.profile)
     learner = DQNLearner(method.num_members, method.action_mask(), cfg.dqn, device, OBS_DIM, method.out_dim)
     learner_state, method_state = split_policy_tensors(tensors)
     learner.load_state_dict(learner_state)
@@ -60,9 +61,10 @@ def load_policy(run: str | Path, scenario: str | None = None, device: str = "cpu
     return Policy(cfg, method, learner, meta)
 
 
-def load_driver(run, scenario: str | None):
-    """(driver(world) -> ((lane, speed), text lines), scenario) for env 0 of a world, from a finished run."""
-    policy = load_policy(run, scenario)
+def load_driver(run, scenario: str | None, profile: str | None = None):
+    """(driver(world) -> ((lane, speed), text lines), scenario) for env 0 of a world, from a finished run
+    (profile: None = the run's own)."""
+    policy = load_policy(run, scenario, profile=profile)
     cfg, method, learner = policy.config, policy.method, policy.learner
     if len(cfg.seeds) > 1:
         raise ValueError(f"run {str(run)!r} holds {len(cfg.seeds)} seeds; render needs a single-seed run")

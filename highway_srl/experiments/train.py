@@ -21,7 +21,7 @@ import torch
 
 from highway_srl.agents.checkpoint import CheckpointError, load_checkpoint, policy_tensors, save_checkpoint, write_atomic
 from highway_srl.agents.dqn import UpdateLog
-from highway_srl.agents.trainer import Episode, Trainer, TrainConfig
+from highway_srl.agents.trainer import OPTIONAL_KEYS, Episode, Trainer, TrainConfig
 from highway_srl.experiments.runs import (
     append_jsonl, check_output_folder, holds_other_files, lock_run, progress_bar, provenance, read_json, read_jsonl,
     run_config, truncate_jsonl, write_json,
@@ -48,14 +48,15 @@ def training_metrics(episodes: list[dict], seeds: list[int]) -> dict:
     """T_c, T_r and rise time (§4.2) per seed and averaged.
 
     T_c: share of training episodes without a collision. T_r: mean return of the last 10% of episodes
-    (at least one). Rise time: first env step at which the moving average of returns (20 episodes) reaches
+    (at least one), in the method's own training reward; T_r_rm: the same mean of the paper's RM return
+    (one scale for every method; None for logs written before it existed). Rise time: first env step at which the moving average of returns (20 episodes) reaches
     90 % of its peak (`rise_time`); rise_time_range_steps: where it reaches min + 0.9 (peak - min).
     """
     per_seed = {}
     for seed in seeds:
         eps = [e for e in episodes if e["seed"] == seed]
         if not eps:
-            per_seed[seed] = {"episodes": 0, "T_c": None, "T_r": None, "rise_time_steps": None,
+            per_seed[seed] = {"episodes": 0, "T_c": None, "T_r": None, "T_r_rm": None, "rise_time_steps": None,
                               "rise_time_range_steps": None}
             continue
         rets = [e["return"] for e in eps]
@@ -67,26 +68,37 @@ def training_metrics(episodes: list[dict], seeds: list[int]) -> dict:
             "episodes": len(eps),
             "T_c": sum(not e["collision"] for e in eps) / len(eps),
             "T_r": sum(tail) / len(tail),
+            "T_r_rm": _tail_mean([e.get("rm_return") for e in eps]),
             "rise_time_steps": rise_time(steps, smooth),
             "rise_time_range_steps": rise_time(steps, smooth, from_min=True),
             "collisions": sum(e["collision"] for e in eps),
             "avg_speed": sum(e["avg_speed"] for e in eps) / len(eps),
         }
     mean = {}
-    for key in ("T_c", "T_r", "rise_time_steps", "rise_time_range_steps", "avg_speed"):
+    for key in ("T_c", "T_r", "T_r_rm", "rise_time_steps", "rise_time_range_steps", "avg_speed"):
         vals = [m[key] for m in per_seed.values() if m.get(key) is not None]
         mean[key] = sum(vals) / len(vals) if vals else None
     return {"per_seed": {str(k): v for k, v in per_seed.items()}, "mean": mean}
 
 
+def _tail_mean(values: list) -> float | None:
+    """Mean of the last 10 % (at least one) of values; None if any is missing (an old episode log)."""
+    if not values or any(v is None for v in values):
+        return None
+    tail = values[-max(1, len(values) // 10):]
+    return sum(tail) / len(tail)
+
+
 def _episode_row(e: Episode) -> dict:
     return {"seed": e.seed, "step": e.step, "return": round(e.ret, 4), "length": e.length, "collision": e.collision,
-            "avg_speed": round(e.avg_speed, 4), "success": e.success, "deploy_reward": round(e.deploy_reward, 4)}
+            "avg_speed": round(e.avg_speed, 4), "success": e.success, "deploy_reward": round(e.deploy_reward, 4),
+            "rm_return": round(e.rm_return, 4)}
 
 
 def _meta(cfg: TrainConfig, trainer: Trainer, code: dict) -> dict:
     return {"method": cfg.method, "scenario": cfg.scenario, "traffic": cfg.traffic, "adversarial": cfg.adversarial,
-            "seeds": list(cfg.seeds), "env_steps": trainer.env_steps, "config": cfg.to_dict(), **code}
+            "profile": cfg.profile, "adversary": cfg.adversary, "seeds": list(cfg.seeds), "env_steps": trainer.env_steps,
+            "config": cfg.to_dict(), **code}
 
 
 LOG_EVERY = 2000  # env steps per seed between two rows of scalars.csv (and TensorBoard points)
@@ -203,7 +215,8 @@ def _check_target(out: Path, resume: bool) -> None:
 def _load_resume(trainer: Trainer, folder: Path, cfg: TrainConfig) -> dict:
     """Load resume/ into a fresh trainer; a checkpoint that does not fit the run's config is one clear line."""
     tensors, meta = load_checkpoint(folder, expect={"method": cfg.method, "scenario": cfg.scenario})
-    fresh = {k: v for k, v in trainer.state_dict().items() if not k.startswith("replay.")}  # replay checks itself
+    fresh = {k: v for k, v in trainer.state_dict().items()  # replay checks itself
+             if not k.startswith("replay.") and not (k in OPTIONAL_KEYS and k not in tensors)}
     missing = sorted(set(fresh) - set(tensors))
     if missing:
         raise CheckpointError(f"{folder} lacks {len(missing)} tensor(s), e.g. {missing[0]!r}; it is not this run's checkpoint")
@@ -286,7 +299,8 @@ def _train_locked(cfg: TrainConfig, out: Path, resume: bool, checkpoint_every: i
     save_checkpoint(out / "model", policy_tensors(trainer.learner, trainer.method), {**_meta(cfg, trainer, code), "wall_s": wall})
     metrics = training_metrics(read_jsonl(log), list(cfg.seeds))
     metrics.update({"method": cfg.method, "scenario": cfg.scenario, "traffic": cfg.traffic,
-                    "adversarial": cfg.adversarial, "env_steps_per_seed": trainer.env_steps, "seeds": list(cfg.seeds),
+                    "adversarial": cfg.adversarial, "profile": cfg.profile, "adversary": cfg.adversary,
+                    "replay_ratio": cfg.replay_ratio, "updates_per_step": cfg.updates_per_step, "env_steps_per_seed": trainer.env_steps, "seeds": list(cfg.seeds),
                     "wall_s": round(wall, 2), "env_steps_per_s": round(trainer.env_steps * len(cfg.seeds) / max(wall, 1e-9), 1),
                     "device": str(trainer.device), "member_usage": _usage(trainer), **code})
     write_json(out / "metrics.json", metrics)
@@ -356,4 +370,4 @@ def bench_train(method: str, scenario: str, traffic: str, envs: int, steps: int,
             "vector_steps": steps, "device": str(trainer.device), "wall_s": round(wall, 3),
             "env_steps_per_s": round(rate, 1),
             "projected_paper_run_min": round(5e5 * seeds / rate / 60, 2) if rate > 0 else math.inf,
-            "updates_per_step": cfg.updates_per_step, "machine": machine()}
+            "replay_ratio": cfg.replay_ratio, "machine": machine()}

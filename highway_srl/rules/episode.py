@@ -14,7 +14,10 @@ Scoring, as in the paper's Tables 5-6:
 - R_r sums deployment_step_reward over the episode's steps, minus max_steps (320) on a collision;
 - merge: an episode succeeds once the ego has merged (the latched flag), whatever ended it: the success
   event only marks the step of merging;
-- success never counts in an episode with a collision.
+- success never counts in an episode with a collision;
+- the RM return sums the paper's training reward (§4.3: r_RM, or its merge/exit mix, -320 on the collision
+  step) computed from the mapped rules, whatever the method trains on: §4.2's T_r on one scale for every
+  method, beside each method's own training return.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from dataclasses import dataclass
 import torch
 
 from highway_srl.rules.metrics import deployment_step_reward
+from highway_srl.rules.reward_machine import scenario_reward
 from highway_srl.scenarios import scenario_spec
 from highway_srl.sim import StageFlags
 
@@ -38,7 +42,7 @@ def advance(world, layer, action: torch.Tensor, use_second: torch.Tensor | None 
     return events, view, world.stage_flags()
 
 
-RESULT_FIELDS = ("env", "return", "length", "collision", "avg_speed", "success", "deploy_reward")
+RESULT_FIELDS = ("env", "return", "length", "collision", "avg_speed", "success", "deploy_reward", "rm_return")
 
 
 @dataclass
@@ -52,6 +56,10 @@ class EpisodeRow:
     avg_speed: float  # m/s
     success: bool  # reached the task's goal without a collision (merge, exit)
     deploy_reward: float  # the paper's R_r
+    rm_return: float  # the paper's RM training reward summed over the episode (every method alike)
+
+
+OPTIONAL_STATE = ("rm",)  # accumulators added after the first checkpoints were written
 
 
 class EpisodeStats:
@@ -61,14 +69,14 @@ class EpisodeStats:
     terms (play: the same numbers as adding Python floats).
     """
 
-    STATE = ("ret", "deploy", "speed", "length", "collision", "success")
+    STATE = ("ret", "deploy", "speed", "length", "collision", "success", "rm")
 
     def __init__(self, scenario: str, num_envs: int, device: torch.device | str, max_steps: int,
                  dtype: torch.dtype = torch.float32):
         self.scenario, self.max_steps = scenario, max_steps
         self.success_flag = scenario_spec(scenario).success_flag
         z = lambda dt=dtype: torch.zeros(num_envs, dtype=dt, device=device)  # noqa: E731
-        self.ret, self.deploy, self.speed = z(), z(), z()
+        self.ret, self.deploy, self.speed, self.rm = z(), z(), z(), z()
         self.length = z(torch.long)
         self.collision, self.success = z(torch.bool), z(torch.bool)
 
@@ -79,18 +87,21 @@ class EpisodeStats:
         ego_speed (B,) m/s, reward (B,) the training reward or None; alive (B,) bool: only these envs
         count this step (None: all)."""
         deploy = deployment_step_reward(self.scenario, view.speed_ratio, r_star=view.r_star, **flags.reward_inputs())
+        rm = scenario_reward(self.scenario, view.scoring_r_rm(), events.collision, **flags.reward_inputs())
         success = events.success if self.success_flag is None else events.success | getattr(flags, self.success_flag)
         collision = events.collision
         if alive is None:
             if reward is not None:
                 self.ret += reward
             self.deploy += deploy
+            self.rm += rm
             self.speed += ego_speed
             self.length += 1
         else:
             if reward is not None:
                 self.ret += torch.where(alive, reward, 0.0)
             self.deploy += torch.where(alive, deploy, 0.0)
+            self.rm += torch.where(alive, rm, 0.0)
             self.speed += torch.where(alive, ego_speed, 0.0)
             self.length += alive.long()
             collision, success = alive & collision, alive & success
@@ -107,6 +118,7 @@ class EpisodeStats:
             "avg_speed": self.speed / self.length.clamp(min=1).to(self.speed.dtype),
             "success": self.success & ~collided,
             "deploy_reward": self.deploy - float(self.max_steps) * collided.to(self.deploy.dtype),
+            "rm_return": self.rm,
         }
 
     def finish(self, done: torch.Tensor) -> list[EpisodeRow]:
@@ -115,7 +127,7 @@ class EpisodeStats:
         r = self.results()
         env = torch.arange(done.shape[0], device=done.device)
         rows = torch.stack([env.to(self.ret.dtype)] + [r[k].to(self.ret.dtype) for k in RESULT_FIELDS[1:]], 1)
-        out = [EpisodeRow(int(v[0]), v[1], int(v[2]), bool(v[3]), v[4], bool(v[5]), v[6])
+        out = [EpisodeRow(int(v[0]), v[1], int(v[2]), bool(v[3]), v[4], bool(v[5]), v[6], v[7])
                for v in rows[idx].cpu().tolist()]
         for name in self.STATE:
             getattr(self, name)[idx] = 0
@@ -125,6 +137,10 @@ class EpisodeStats:
         return {name: getattr(self, name) for name in self.STATE}
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
+        """A state saved before the RM return existed ("rm" missing) restarts that sum at 0 for the running
+        episodes (their RM return then counts only the steps after the resume)."""
         for name in self.STATE:
             old = getattr(self, name)
+            if name not in state and name in OPTIONAL_STATE:
+                continue
             setattr(self, name, state[name].to(device=old.device, dtype=old.dtype).clone())

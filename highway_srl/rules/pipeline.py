@@ -114,6 +114,11 @@ class ModelStep:
     vehicles: Vehicles
     lanes: LaneModel
 
+    def scoring_r_rm(self) -> torch.Tensor:
+        """(B,) r_RM of the paper's mapped rules, what every method's episodes are scored with (the RM return
+        beside the training return); the raw view returns its mapped layer's."""
+        return self.r_rm
+
 
 @dataclass
 class SafetyStep:

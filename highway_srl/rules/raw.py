@@ -52,7 +52,8 @@ T_ID_COLUMN = OBS_NAMES.index("t_id")
 class RawModelStep(ModelStep):
     """A ModelStep of the raw view. obs, mask (Table 1 over A* on raw R_SVi), rm_state, r_rm, r_sv (raw R_SVi),
     m_l_ego (centre test), t_id (global), v_star, gaps_m, vehicles, lanes: what the agent sees. r_star and
-    speed_ratio: the mapped R*_SV and v/v* of the standard layer, for the deployment reward only.
+    speed_ratio: the mapped R*_SV and v/v* of the standard layer, for the deployment reward only (and
+    mapped_r_rm its r_RM, for the RM return every method is scored with).
     mask5 (B, 5) bool: the safe-action check over FIVE_ACTIONS (Faster ⇔ R1, Slower ⇔ R3, LaneLeft/Right ⇔
     the lane exists, may be crossed here and R2 ∧ R4 of that lane, Idle ⇔ R1 ∨ (¬R3 ∧ no lane change safe)).
     lane_left, lane_right (B,) long: the global lanes LaneLeft/LaneRight go to (the ego lane if none)."""
@@ -60,6 +61,10 @@ class RawModelStep(ModelStep):
     mask5: torch.Tensor
     lane_left: torch.Tensor
     lane_right: torch.Tensor
+    mapped_r_rm: torch.Tensor  # (B,) r_RM of the mapped layer run alongside, for scoring only
+
+    def scoring_r_rm(self) -> torch.Tensor:
+        return self.mapped_r_rm
 
 
 class RawSafetyLayer:
@@ -165,6 +170,7 @@ class RawSafetyLayer:
             v_star=v_star, speed_ratio=metric.speed_ratio, gaps_m=gaps, vehicles=veh, lanes=lanes, mask5=mask5,
             lane_left=torch.where(crossing_allowed(road, ego_lane, left, x), left, ego_lane),
             lane_right=torch.where(crossing_allowed(road, ego_lane, right, x), right, ego_lane),
+            mapped_r_rm=metric.r_rm,
         )
         self.last = SafetyStep(step, step, torch.zeros_like(changing), snap)
         return self.last

@@ -71,7 +71,7 @@ class Budget:
     seeds: tuple[int, ...]  # independent runs, batched in one process per job
     learning_starts: int
     batch_size: int
-    updates_per_step: int
+    replay_ratio: float  # gradient steps per env step (Algorithm 1: 1.0); below 1 the report says so
     eval_episodes: int  # per seed and traffic level
     group1_levels: tuple[str, ...]
     checkpoint_every: int  # env steps between resume checkpoints
@@ -80,21 +80,21 @@ class Budget:
 
 BUDGETS: dict[str, Budget] = {
     "smoke": Budget(
-        "smoke", steps=1_344, envs=4, seeds=(0,), learning_starts=800, batch_size=32, updates_per_step=1,
+        "smoke", steps=1_344, envs=4, seeds=(0,), learning_starts=800, batch_size=32, replay_ratio=0.25,
         eval_episodes=4, group1_levels=("A", "C", "F"), checkpoint_every=10**9,
         expected_cost="about 10-11 minutes on a 2-core CPU for its 43 jobs (336 vector steps per run: one "
                       "episode per env, 1 seed, 4 episodes per level, Group 1 at levels A, C, F); checks that "
                       "every artefact is produced, "
                       "says nothing about the paper"),
     "quick": Budget(
-        "quick", steps=40_000, envs=8, seeds=(0, 1), learning_starts=1_000, batch_size=64, updates_per_step=1,
+        "quick", steps=40_000, envs=8, seeds=(0, 1), learning_starts=1_000, batch_size=64, replay_ratio=0.25,
         eval_episodes=20, group1_levels=tuple(TRAFFIC_LEVELS), checkpoint_every=8_000,
         expected_cost="about 71 minutes on a 2-core CPU with all 8 methods (docs/results.md; 4e4 steps x 2 "
                       "seeds per run, 20 episodes per seed and level); "
                       "enough for MoE-RM-SRL's return to rise, not for the paper's numbers"),
     "paper": Budget(
         "paper", steps=500_000, envs=16, seeds=tuple(range(10)), learning_starts=1_000, batch_size=256,
-        updates_per_step=4, eval_episodes=100, group1_levels=tuple(TRAFFIC_LEVELS), checkpoint_every=50_000,
+        replay_ratio=1.0, eval_episodes=100, group1_levels=tuple(TRAFFIC_LEVELS), checkpoint_every=50_000,
         expected_cost="5e5 steps x 10 seeds per run (the seeds batched in one process), 100 episodes per seed "
                       "and level, 43 runs. CPU: about 3-6 h per run on 2 cores (measured rate of the first "
                       "steps), so 5-10 days for the study on a 2-core CPU, less with more cores (--jobs) or a Ray "
@@ -122,7 +122,7 @@ class Job:
     envs: int = 16
     learning_starts: int = 1_000
     batch_size: int = 256
-    updates_per_step: int = 4
+    replay_ratio: float = 1.0
     checkpoint_every: int = 50_000
     eval_levels: tuple[str, ...] = ("C",)
     eval_episodes: int = 100
@@ -155,7 +155,7 @@ class Job:
         dqn = DQNConfig(total_steps=self.steps, learning_starts=self.learning_starts, batch_size=self.batch_size)
         return TrainConfig(method=self.method, scenario=scene.scenario, traffic=TRAIN_TRAFFIC,
                            adversarial=scene.adversarial, steps=self.steps, envs=self.envs, seeds=self.seeds,
-                           device=device, updates_per_step=self.updates_per_step, dqn=dqn,
+                           device=device, replay_ratio=self.replay_ratio, dqn=dqn,
                            options={o: True for o in self.options})
 
     def cost(self) -> int:
@@ -228,7 +228,7 @@ def study_jobs(budget: Budget | str, methods: tuple[str, ...] | None = None,
             levels = tuple(sorted({*levels, TRAIN_TRAFFIC}, key=list(TRAFFIC_LEVELS).index))
         jobs.append(Job(method=method, scene=scene, options=options, seeds=b.seeds, steps=b.steps, envs=b.envs,
                         learning_starts=b.learning_starts, batch_size=b.batch_size,
-                        updates_per_step=b.updates_per_step, checkpoint_every=b.checkpoint_every,
+                        replay_ratio=b.replay_ratio, checkpoint_every=b.checkpoint_every,
                         eval_levels=levels, eval_episodes=b.eval_episodes, artefacts=tuple(sorted(artefacts))))
     jobs.sort(key=lambda j: (-j.cost(), j.id))
     return jobs

@@ -165,6 +165,17 @@ def claims(results: T.Results) -> list[Claim]:
 # --------------------------------------------------------------------------------------------- the report
 
 
+def _rate(budget: dict) -> str:
+    """The update rate of a study's budget in words; below Algorithm 1's one update per env step, says so."""
+    ratio = budget.get("replay_ratio")
+    if ratio is None:  # a study written before replay_ratio
+        return f"{budget.get('updates_per_step')} update(s) per acting member per vector step"
+    text = f"replay ratio {ratio:g} (gradient steps per env step)"
+    if ratio < 1:
+        text += f", below Algorithm 1's 1 update per env step (this budget lowers it {1 / ratio:g}x to save time)"
+    return text
+
+
 def _duration(seconds: float | None) -> str:
     if seconds is None:
         return "n/a"
@@ -200,7 +211,7 @@ def _setting(results: T.Results) -> list[str]:
         f"seed, seeds {', '.join(map(str, b.get('seeds', [])))} ({len(b.get('seeds', []))} run(s) per method and "
         f"scene, batched in one process), {b.get('eval_episodes')} deployment episodes per seed and level, Group 1 "
         f"levels {', '.join(b.get('group1_levels', []))}; DQN batch {b.get('batch_size')}, "
-        f"{b.get('updates_per_step')} update(s) per step, learning starts at {b.get('learning_starts', 0):,} steps.",
+        + _rate(b) + f", learning starts at {b.get('learning_starts', 0):,} steps.",
         f"- **Methods:** {', '.join(state['methods']) if state.get('methods') else 'all the study knows'} (not "
         "the paper's Manual baseline: people at the keyboard, `highway-srl play`); jobs: "
         + ", ".join(f"{n} {s}" for s, n in sorted(counts.items())) + ".",

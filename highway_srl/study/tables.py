@@ -42,13 +42,14 @@ class Result:
         return self.status == "done" and self.metrics is not None and self.evaluation is not None
 
     def train(self) -> dict | None:
-        """T_c, T_r, rise time (means over seeds) and their spread; None if not trained."""
+        """T_c, T_r (own training reward), T_r_rm (the paper's RM return, one scale for every method), rise
+        time (means over seeds) and their spread; None if not trained."""
         if self.metrics is None:
             return None
         per_seed = list(self.metrics.get("per_seed", {}).values())
         out = {"seeds": len(per_seed), "episodes": sum(s.get("episodes") or 0 for s in per_seed),
                "collisions": sum(s.get("collisions") or 0 for s in per_seed)}
-        for key, name in (("T_c", "T_c"), ("T_r", "T_r"), ("rise_time_steps", "rise_time")):
+        for key, name in (("T_c", "T_c"), ("T_r", "T_r"), ("T_r_rm", "T_r_rm"), ("rise_time_steps", "rise_time")):
             out[name] = self.metrics.get("mean", {}).get(key)
             out[f"{name}_sd"] = sd([s.get(key) for s in per_seed])
         return out
@@ -341,20 +342,33 @@ def multilane(results: Results) -> Table:
                  notes=["Collision rate = 1 - C_r; ± is the standard deviation over runs."])
 
 
-T5_KINDS = {"T_c": "f3", "T_r": "f2", "C_r": "pct", "R_r": "f2", "R_s": "pct"}
+T5_KINDS = {"T_c": "f3", "T_r": "f2", "T_r_rm": "f2", "C_r": "pct", "R_r": "f2", "R_s": "pct"}
+# T_r twice (§4.2 "on one scale"): each method's own training return, and the paper's RM return of the same
+# episodes, which every method is scored with; the paper prints one T_r (its methods' own returns)
+METRIC_LABELS = {"T_r": "T_r (own reward)", "T_r_rm": "T_r (RM return)"}
+
+
+def _with_rm_return(metrics: list[str]) -> list[str]:
+    """The paper's metric rows with T_r_rm after T_r."""
+    out = []
+    for metric in metrics:
+        out.append(metric)
+        if metric == "T_r":
+            out.append("T_r_rm")
+    return out
 
 
 def table5(results: Results) -> Table:
     rows, wide = [], []
     for scene in TABLE5_SCENES:
         res_of = {m: results.get(m, scene) for m in TABLE5_METHODS}
-        metrics = list(paper.TABLE5[scene])
+        metrics = _with_rm_return(list(paper.TABLE5[scene]))
         for metric in metrics:
-            wrow = {"scene": SCENES[scene].label, "metric": metric}
+            wrow = {"scene": SCENES[scene].label, "metric": METRIC_LABELS.get(metric, metric)}
             for m in TABLE5_METHODS:
                 res = res_of[m]
                 ours, spread = _t5_value(res, metric)
-                paper_value = paper.TABLE5[scene][metric][m]
+                paper_value = paper.TABLE5[scene].get(metric, {}).get(m)
                 rows.append({"scene": SCENES[scene].label, "scene_key": scene, "metric": metric,
                              "method": METHOD_LABELS[m], "method_key": m, "status": _status(res), "ours": ours,
                              "ours_sd": spread, "paper": paper_value})
@@ -367,7 +381,9 @@ def table5(results: Results) -> Table:
         Column(m, f"{METHOD_LABELS[m] if m != OURS else 'Ours'} (ours / paper)") for m in TABLE5_METHODS]
     return Table("table5", "Table 5: comparison on the six scenes (ours / paper)", cols, rows,
                  display=Table("", "", shown, wide),
-                 notes=["T_c training collision-free rate, T_r final training return (last 10% of episodes), "
+                 notes=["T_c training collision-free rate, T_r final training return (last 10% of episodes) in "
+                        "the method's own training reward, T_r (RM return) the paper's RM reward of the same "
+                        "episodes (one scale for every method; the paper prints only the first), "
                         "C_r deployment collision-free rate, R_r deployment reward, R_s success rate; means over "
                         "seeds / pooled episodes at level C. '–': no result (see the report's job list)."])
 
@@ -375,7 +391,7 @@ def table5(results: Results) -> Table:
 def _t5_value(res: Result | None, metric: str) -> tuple[float | None, float | None]:
     if res is None or not res.done:
         return None, None
-    if metric in ("T_c", "T_r"):
+    if metric in ("T_c", "T_r", "T_r_rm"):
         t = res.train()
         return t[metric], t[f"{metric}_sd"]
     d = res.deploy(TRAIN_TRAFFIC) or {}
@@ -387,17 +403,17 @@ def table6(results: Results) -> Table:
     for variant, label in (("full", "Full (Ours)"), *ABLATIONS.items()):
         res = results.get(OURS, ABLATION_SCENE, () if variant == "full" else (variant,))
         row = {"variant": label, "variant_key": variant, "status": _status(res)}
-        for metric in ("T_c", "T_r", "C_r", "R_r"):
+        for metric in ("T_c", "T_r", "T_r_rm", "C_r", "R_r"):
             row[metric], row[f"{metric}_sd"] = _t5_value(res, metric)
-            row[f"{metric}_paper"] = paper.TABLE6[variant][metric]
+            row[f"{metric}_paper"] = paper.TABLE6[variant].get(metric)
         rows.append(row)
     cols = [Column("variant", "variant"), Column("variant_key", "key"), Column("status", "status")]
-    for metric in ("T_c", "T_r", "C_r", "R_r"):
+    for metric in ("T_c", "T_r", "T_r_rm", "C_r", "R_r"):
         cols += [Column(metric, metric), Column(f"{metric}_sd", f"{metric} sd"),
                  Column(f"{metric}_paper", f"{metric} (paper)")]
     shown = [Column("variant", "Variant"), Column("status", "status")] + [
-        Column(m, f"{m} (ours / paper)", render=_both(T5_KINDS[m], m, f"{m}_paper"))
-        for m in ("T_c", "T_r", "C_r", "R_r")]
+        Column(m, f"{METRIC_LABELS.get(m, m)} (ours / paper)", render=_both(T5_KINDS[m], m, f"{m}_paper"))
+        for m in ("T_c", "T_r", "T_r_rm", "C_r", "R_r")]
     return Table("table6", "Table 6: ablation on adversarial two-lane (ours / paper)", cols, rows,
                  display=Table("", "", shown, rows))
 
@@ -415,16 +431,19 @@ def training(results: Results) -> Table:
                          "method_key": m, "status": _status(res), "seeds": t.get("seeds"),
                          "episodes": t.get("episodes"), "collisions": t.get("collisions"),
                          "T_c": t.get("T_c"), "T_c_sd": t.get("T_c_sd"), "rise_time": t.get("rise_time"),
-                         "rise_time_sd": t.get("rise_time_sd"), "T_r": t.get("T_r"), "T_r_sd": t.get("T_r_sd")})
+                         "rise_time_sd": t.get("rise_time_sd"), "T_r": t.get("T_r"), "T_r_sd": t.get("T_r_sd"),
+                         "T_r_rm": t.get("T_r_rm"), "T_r_rm_sd": t.get("T_r_rm_sd")})
     cols = [Column("scene", "scene"), Column("scene_key", "scene key"), Column("method", "method"),
             Column("method_key", "method key"), Column("status", "status"), Column("seeds", "seeds", "int"),
             Column("episodes", "training episodes", "int"), Column("collisions", "training collisions", "int"),
             Column("T_c", "T_c", "f3"), Column("T_c_sd", "T_c sd", "f3"),
             Column("rise_time", "rise time (steps)", "int"), Column("rise_time_sd", "rise time sd", "f0"),
-            Column("T_r", "T_r", "f2"), Column("T_r_sd", "T_r sd", "f2")]
+            Column("T_r", "T_r (own reward)", "f2"), Column("T_r_sd", "T_r sd", "f2"),
+            Column("T_r_rm", "T_r (RM return)", "f2"), Column("T_r_rm_sd", "T_r (RM return) sd", "f2")]
     shown = [c for c in cols if c.key in ("scene", "method", "status", "seeds", "episodes", "collisions")] + [
         Column("T_c", "T_c", render=_with_sd("f3", "T_c")), Column("rise_time", "rise time (steps)", "int"),
-        Column("T_r", "T_r", render=_with_sd("f2", "T_r"))]
+        Column("T_r", "T_r (own reward)", render=_with_sd("f2", "T_r")),
+        Column("T_r_rm", "T_r (RM return)", render=_with_sd("f2", "T_r_rm"))]
     return Table("training_pareto", "Training: collision-free rate T_c against rise time", cols, rows,
                  display=Table("", "", shown, rows),
                  notes=["Rise time: env steps per seed until the 20-episode moving average of the return first "

@@ -43,12 +43,14 @@ class TransferSettings:
     traffic: str = "C"  # training and deployment level
     learning_starts: int = 1_000
     batch_size: int = 256
-    updates_per_step: int = 4
+    replay_ratio: float = 0.25  # gradient steps per env step (Algorithm 1: 1; 0.25 = the former 4 per 16 envs)
 
     def check(self) -> None:
-        for name in ("steps", "envs", "episodes", "batch_size", "updates_per_step"):
+        for name in ("steps", "envs", "episodes", "batch_size"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be positive, got {getattr(self, name)}")
+        if not self.replay_ratio >= 0:
+            raise ValueError(f"replay_ratio must be non-negative, got {self.replay_ratio}")
         if self.seed < 0:
             raise ValueError(f"--seed must be non-negative, got {self.seed}")
         if self.traffic not in TRAFFIC_LEVELS:
@@ -70,7 +72,7 @@ def transfer_jobs(settings: TransferSettings, methods=TRANSFER_METHODS, scenes=T
         raise ValueError("the transfer study trains at level C (the paper's training level)")
     return [Job(method=m, scene=s, seeds=(settings.seed,), steps=settings.steps, envs=settings.envs,
                 learning_starts=settings.learning_starts, batch_size=settings.batch_size,
-                updates_per_step=settings.updates_per_step, checkpoint_every=max(settings.steps // 5, 1),
+                replay_ratio=settings.replay_ratio, checkpoint_every=max(settings.steps // 5, 1),
                 eval_levels=(settings.traffic,), eval_episodes=settings.episodes)
             for s in scenes for m in methods]
 
@@ -220,8 +222,8 @@ def transfer_table(root: Path, jobs: list[Job], simulators, settings: TransferSe
         wide_cols += [Column(f"{s}_{metric}", f"{header}: {SIMULATOR_LABELS[s]}") for s in simulators]
     table.display = Table("transfer", table.title, wide_cols, wide)
     table.notes = [f"Trained {settings.steps:,} env steps at level {settings.traffic} in our simulator (seed "
-                   f"{settings.seed}, {settings.envs} envs, batch {settings.batch_size}, {settings.updates_per_step}"
-                   f" update(s) per step); {settings.episodes} greedy episodes per simulator on the same episode "
+                   f"{settings.seed}, {settings.envs} envs, batch {settings.batch_size}, replay ratio "
+                   f"{settings.replay_ratio:g} update(s) per env step); {settings.episodes} greedy episodes per simulator on the same episode "
                    "seeds. R_s only on merge and exit. CSV: 95 % intervals of C_r."]
     return table
 

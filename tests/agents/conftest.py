@@ -26,7 +26,7 @@ def short_config():
     def make(method: str, steps: int = 1600, **kw) -> TrainConfig:
         dqn = DQNConfig(total_steps=steps, learning_starts=300, target_update_interval=200, exploration_fraction=0.3,
                         buffer_capacity=max(steps, 2048))  # never full here; the default would allocate GBs for 11 experts
-        return TrainConfig(method=method, scenario="two-lane", traffic="A", steps=steps, envs=8, updates_per_step=2,
+        return TrainConfig(method=method, scenario="two-lane", traffic="A", steps=steps, envs=8, replay_ratio=0.25,
                            dqn=dqn, **kw)
 
     return make
@@ -40,7 +40,7 @@ def trainer_config():
 
     def make(steps: int = 2400, **kw) -> TrainConfig:
         dqn = DQNConfig(total_steps=steps, learning_starts=300, target_update_interval=200, exploration_fraction=0.3)
-        return TrainConfig(scenario="two-lane", traffic="A", steps=steps, envs=8, updates_per_step=2, dqn=dqn, **kw)
+        return TrainConfig(scenario="two-lane", traffic="A", steps=steps, envs=8, replay_ratio=0.25, dqn=dqn, **kw)
 
     return make
 

@@ -48,26 +48,6 @@ def test_sr_rl_executes_the_highest_q_action_that_passes_the_safety_check():
     assert masks.gather(1, d.action[:, None]).all()
 
 
-def test_et_rl_never_executes_an_action_the_safety_check_rejects(short_config):
-    config = short_config("et-rl")
-    config.traffic = "C"
-    trainer = Trainer(config)
-    decide, checked = trainer.method.decide, {"steps": 0, "takeovers": 0}
-
-    def checked_decide(learner, step, explore, generator):
-        d = decide(learner, step, explore, generator)
-        model = step.select(d.use_second)
-        assert model.mask.gather(1, d.action[:, None]).all(), "an unsafe action was executed"
-        checked["steps"] += 1
-        checked["takeovers"] += int(trainer.method.takeover.sum())
-        return d
-
-    trainer.method.decide = checked_decide
-    for _ in range(60):  # ε = 1 here: random proposals, many of them unsafe in level C
-        trainer.step()
-    assert checked["takeovers"] > 0
-
-
 def test_lagrange_multiplier_rises_above_the_cost_limit_and_falls_back_below_it():
     lam = torch.tensor([0.5])
     up = dual_update(lam, torch.tensor([COST_LIMIT + 20.0]))

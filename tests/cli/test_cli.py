@@ -125,3 +125,24 @@ def test_console_script_reports_errors_without_traceback():
     proc = subprocess.run(exe, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     assert "unknown scenario 'nowhere'" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_train_help_lists_profile_adversary_and_replay_ratio(capsys):
+    assert main(["train", "--help"]) == 0
+    text = capsys.readouterr().out
+    assert "--profile" in text and "--replay-ratio" in text and "--adversary" in text
+
+
+def test_a_runs_config_records_profile_adversary_and_replay_ratio(capsys, tmp_path):
+    out = tmp_path / "run"
+    assert main(["train", "--method", "rl", "--traffic", "A", "--steps", "64", "--envs", "4", "--learning-starts",
+                 "32", "--profile", "safe", "--adversary", "mild", "--replay-ratio", "0.5", "--quiet",
+                 "--out", str(out)]) == 0
+    config = json.loads((out / "config.json").read_text())["config"]
+    assert (config["profile"], config["adversary"], config["replay_ratio"]) == ("safe", "mild", 0.5)
+    capsys.readouterr()
+    code, text, _ = run(capsys, "evaluate", str(out), "--episodes", "2", "--json", "--out", str(tmp_path / "e.json"))
+    assert code == 0 and (json.loads(text)["profile"], json.loads(text)["adversary"]) == ("safe", "mild")
+    code, text, _ = run(capsys, "evaluate", str(out), "--episodes", "2", "--json", "--profile", "paper",
+                        "--out", str(tmp_path / "f.json"))
+    assert code == 0 and json.loads(text)["profile"] == "paper"

@@ -12,13 +12,15 @@ from highway_srl.sim import StageFlags
 T, F = True, False
 
 
-def _step(stats, *, collision, success=None, merged=None, speed_ratio, ego_speed, reward=None, r_star=None, alive=None):
+def _step(stats, *, collision, success=None, merged=None, speed_ratio, ego_speed, reward=None, r_star=None, alive=None,
+          r_rm=None):
     b = len(collision)
+    rm = torch.tensor(r_rm if r_rm is not None else [0.0] * b)
     flag = lambda v: torch.tensor(v if v is not None else [F] * b)  # noqa: E731
     events = SimpleNamespace(collision=torch.tensor(collision), success=flag(success))
     flags = StageFlags(merged=flag(merged), exit1=flag(None), exit2=flag(None))
     view = SimpleNamespace(speed_ratio=torch.tensor(speed_ratio),
-                           r_star=None if r_star is None else torch.tensor(r_star))
+                           r_star=None if r_star is None else torch.tensor(r_star), scoring_r_rm=lambda: rm)
     stats.add(events, flags, view, torch.tensor(ego_speed), None if reward is None else torch.tensor(reward),
               None if alive is None else torch.tensor(alive))
 
@@ -77,3 +79,21 @@ def test_float64_sums_equal_python_float_sums_of_the_float32_step_values():
         _step(stats, collision=[F], speed_ratio=[0.3], ego_speed=[1.0], reward=[float(r)], r_star=[[F] * 4])
         total += float(torch.tensor([float(r)])[0])
     assert stats.finish(torch.tensor([T]))[0].ret == total
+
+
+def test_rm_return_sums_the_papers_rm_reward_whatever_the_training_reward():
+    # two-lane: r_RM per step, -320 replacing the step's reward on the collision step (§4.3)
+    stats = EpisodeStats("two-lane", 2, "cpu", max_steps=320)
+    _step(stats, collision=[F, F], speed_ratio=[1.0, 1.0], ego_speed=[9.0, 9.0], reward=[0.9, 0.9],
+          r_star=[[T] * 4, [T] * 4], r_rm=[0.8, 0.5])
+    _step(stats, collision=[F, T], speed_ratio=[1.0, 1.0], ego_speed=[9.0, 9.0], reward=[0.9, -320.0],
+          r_star=[[T] * 4, [T] * 4], r_rm=[1.0, 1.0])
+    first, second = stats.finish(torch.tensor([T, T]))
+    assert first.rm_return == pytest.approx(1.8) and first.ret == pytest.approx(1.8)
+    assert second.rm_return == pytest.approx(0.5 - 320.0)
+    # merge: 0.7 r_RM + 0.3 r_merge
+    stats = EpisodeStats("merge", 1, "cpu", max_steps=320)
+    _step(stats, collision=[F], merged=[F], speed_ratio=[1.0], ego_speed=[9.0], r_rm=[1.0])
+    _step(stats, collision=[F], merged=[T], speed_ratio=[1.0], ego_speed=[9.0], r_rm=[0.5])
+    (row,) = stats.finish(torch.tensor([T]))
+    assert row.rm_return == pytest.approx(0.7 + 0.35 + 0.3) and row.ret == 0.0

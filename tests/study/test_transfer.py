@@ -13,7 +13,7 @@ from highway_srl.experiments.evaluate import evaluate_run
 from highway_srl.study.transfer import TransferSettings, run_transfer
 
 SIMS = available_backends()  # CI installs both extras; elsewhere the missing ones are left out
-SMALL = TransferSettings(steps=320, envs=4, episodes=2, learning_starts=64, batch_size=32, updates_per_step=1)
+SMALL = TransferSettings(steps=320, envs=4, episodes=2, learning_starts=64, batch_size=32, replay_ratio=0.25)
 
 
 @pytest.fixture(scope="module")
