@@ -232,8 +232,10 @@ def _cmd_reproduce(args) -> int:
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip()) if args.methods else None
     scenes = tuple(s.strip() for s in args.scenes.split(",") if s.strip()) if args.scenes else None
     seeds = _seeds(args.seeds) if args.seeds else None
+    profiles = tuple(p.strip() for p in args.profiles.split(",") if p.strip()) if args.profiles else None
     state = reproduce(args.budget, args.out, jobs=args.jobs, executor=executor, address=args.address,
-                      device=args.device, methods=methods, scenes=scenes, seeds=seeds, progress=True)
+                      device=args.device, methods=methods, scenes=scenes, seeds=seeds, profiles=profiles,
+                      progress=True)
     failed = [j for j in state["jobs"].values() if j.get("status") == "failed"]
     return 1 if failed else 0
 
@@ -387,6 +389,9 @@ def add_parsers(sub, scenario_args) -> None:
     p.add_argument("--scenes", default=None, help="only these scenes, comma-separated: two-lane, merge, exit, "
                    "adv-two-lane, adv-merge, adv-exit, multi-lane, adv-multi-lane (default: all)")
     p.add_argument("--seeds", default=None, help="seeds instead of the budget's, comma-separated, e.g. 0 or 0,1,2")
+    p.add_argument("--profiles", default=None, help="control profiles, comma-separated, paper first: paper (the "
+                   "reproduction) and safe (our safety additions, reported as 'beyond the paper'); default: the "
+                   "budget's (smoke: paper; quick and paper: paper,safe)")
     p.set_defaults(func=_cmd_reproduce)
 
     from highway_srl.study import transfer as tr

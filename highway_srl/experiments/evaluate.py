@@ -34,17 +34,25 @@ def run_episodes(world, method, learner, on_step=None) -> dict[str, torch.Tensor
     alive = torch.ones(b, dtype=torch.bool, device=dev)
     no_explore = torch.zeros(b, dtype=torch.bool, device=dev)
     view = layer.observe(world)
+    counts = getattr(world, "adversary_counts", None)  # our simulator counts group-3 triggers and cut-ins
+    adv = {k: torch.zeros(b, dtype=torch.long, device=dev) for k in ("triggers", "cut_ins")} if counts else None
     for step_no in range(world.max_steps):
         if on_step is not None:
             on_step(step_no)
         t = policy_step(method, learner, world, layer, view, no_explore, None, stats, alive=alive)
         view = t.view
+        if adv is not None:  # each episode's counters as they stood when it ended
+            for k, v in counts().items():
+                adv[k] = torch.where(alive, v, adv[k])
         alive &= ~(t.events.terminated | t.events.truncated)
         if not bool(alive.any()):
             break
     results = stats.results()
-    return {"collided": results["collision"].cpu(), "success": results["success"].cpu(),
-            "avg_speed": results["avg_speed"].cpu(), "deploy_reward": results["deploy_reward"].cpu()}
+    out = {"collided": results["collision"].cpu(), "success": results["success"].cpu(),
+           "avg_speed": results["avg_speed"].cpu(), "deploy_reward": results["deploy_reward"].cpu()}
+    if adv is not None:
+        out.update({f"adv_{k}": v.cpu() for k, v in adv.items()})
+    return out
 
 
 def summarise(results: dict[str, torch.Tensor], scenario: str) -> dict:
@@ -57,6 +65,9 @@ def summarise(results: dict[str, torch.Tensor], scenario: str) -> dict:
     }
     if scenario_spec(scenario).reports_success:
         out["R_s"] = asdict(success_rate(results["success"]))
+    if "adv_triggers" in results:  # group 3: trigger draws and forced cut-ins per episode
+        out["adversary"] = {"triggers_per_episode": float(results["adv_triggers"].float().mean()),
+                            "cut_ins_per_episode": float(results["adv_cut_ins"].float().mean())}
     return out
 
 

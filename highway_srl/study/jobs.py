@@ -10,6 +10,10 @@ that reads it: the two-lane MoE-RM-SRL run feeds Group 1, Table 5 and the traini
   Table 5   ET-RL, MP-RL, SR-RL, RL, LM-RL, MoE-RM-SRL on the six scenes
   Table 6   MoE-RM-SRL without mapping / MoE / RM on adversarial two-lane
   training  T_c against rise time (all non-ablation runs) and training curves per scene
+
+Every job runs under one control profile: the reproduction under "paper" (Eqs. 31-35 as printed, the paper's
+adversary), and, where the budget lists it, the same jobs again under "safe" (our safety additions), a set
+labelled "beyond the paper" in the tables and the report (folders runs/safe/SCENE/VARIANT).
 """
 
 from __future__ import annotations
@@ -61,6 +65,8 @@ GROUP1_METHODS = tuple(METHOD_LABELS)  # every method, as in the deployment figu
 ABLATIONS: dict[str, str] = {"no_mapping": "w/o MAP", "no_moe": "w/o MoE", "no_rm": "w/o RM"}
 ABLATION_SCENE = "adv-two-lane"
 TRAIN_TRAFFIC = "C"  # every group trains at level C (§4.3)
+REPRODUCTION_PROFILE = "paper"  # the profile of the reproduction; any other is "beyond the paper"
+STUDY_ADVERSARY = "paper"  # group 3's cut-ins, in every profile
 
 
 @dataclass(frozen=True)
@@ -76,6 +82,7 @@ class Budget:
     group1_levels: tuple[str, ...]
     checkpoint_every: int  # env steps between resume checkpoints
     expected_cost: str  # what it takes, said to the user in --help and the report
+    profiles: tuple[str, ...] = (REPRODUCTION_PROFILE,)  # control profiles run; the first is the paper's
 
 
 BUDGETS: dict[str, Budget] = {
@@ -88,13 +95,14 @@ BUDGETS: dict[str, Budget] = {
                       "says nothing about the paper"),
     "quick": Budget(
         "quick", steps=40_000, envs=8, seeds=(0, 1), learning_starts=1_000, batch_size=64, replay_ratio=0.25,
-        eval_episodes=20, group1_levels=tuple(TRAFFIC_LEVELS), checkpoint_every=8_000,
+        eval_episodes=20, group1_levels=tuple(TRAFFIC_LEVELS), checkpoint_every=8_000, profiles=("paper", "safe"),
         expected_cost="about 71 minutes on a 2-core CPU with all 8 methods (docs/results.md; 4e4 steps x 2 "
                       "seeds per run, 20 episodes per seed and level); "
                       "enough for MoE-RM-SRL's return to rise, not for the paper's numbers"),
     "paper": Budget(
         "paper", steps=500_000, envs=16, seeds=tuple(range(10)), learning_starts=1_000, batch_size=256,
         replay_ratio=1.0, eval_episodes=100, group1_levels=tuple(TRAFFIC_LEVELS), checkpoint_every=50_000,
+        profiles=("paper", "safe"),
         expected_cost="5e5 steps x 10 seeds per run (the seeds batched in one process), 100 episodes per seed "
                       "and level, 43 runs. CPU: about 3-6 h per run on 2 cores (measured rate of the first "
                       "steps), so 5-10 days for the study on a 2-core CPU, less with more cores (--jobs) or a Ray "
@@ -122,11 +130,14 @@ class Job:
     envs: int = 16
     learning_starts: int = 1_000
     batch_size: int = 256
-    replay_ratio: float = 1.0
+    replay_ratio: float | None = 1.0
     checkpoint_every: int = 50_000
     eval_levels: tuple[str, ...] = ("C",)
     eval_episodes: int = 100
     artefacts: tuple[str, ...] = field(default=(), compare=False)
+    profile: str = REPRODUCTION_PROFILE  # control profile of the method's rule layer
+    adversary: str = STUDY_ADVERSARY  # group-3 cut-ins on the adversarial scenes
+    legacy_updates_per_step: int | None = None  # studies written before replay_ratio (replay_ratio None)
 
     @property
     def variant(self) -> str:
@@ -134,13 +145,20 @@ class Job:
         return "-".join((self.method, *self.options))
 
     @property
+    def beyond_the_paper(self) -> bool:
+        """A job of a profile other than the reproduction's (a study written before profiles had one set)."""
+        return self.profile != REPRODUCTION_PROFILE and self.replay_ratio is not None
+
+    @property
     def id(self) -> str:
-        return f"{self.scene}/{self.variant}"
+        prefix = f"{self.profile}:" if self.beyond_the_paper else ""
+        return f"{prefix}{self.scene}/{self.variant}"
 
     @property
     def folder(self) -> str:
-        """The run folder, relative to the study's root."""
-        return f"runs/{self.scene}/{self.variant}"
+        """The run folder, relative to the study's root (runs/PROFILE/... beyond the paper's profile)."""
+        prefix = f"{self.profile}/" if self.beyond_the_paper else ""
+        return f"runs/{prefix}{self.scene}/{self.variant}"
 
     @property
     def label(self) -> str:
@@ -155,7 +173,9 @@ class Job:
         dqn = DQNConfig(total_steps=self.steps, learning_starts=self.learning_starts, batch_size=self.batch_size)
         return TrainConfig(method=self.method, scenario=scene.scenario, traffic=TRAIN_TRAFFIC,
                            adversarial=scene.adversarial, steps=self.steps, envs=self.envs, seeds=self.seeds,
-                           device=device, replay_ratio=self.replay_ratio, dqn=dqn,
+                           device=device, replay_ratio=self.replay_ratio,
+                           updates_per_step=self.legacy_updates_per_step, profile=self.profile,
+                           adversary=self.adversary, dqn=dqn,
                            options={o: True for o in self.options})
 
     def cost(self) -> int:
@@ -173,6 +193,9 @@ class Job:
         d = dict(d)
         for k in ("options", "seeds", "eval_levels", "artefacts"):
             d[k] = tuple(d.get(k, ()))
+        if "replay_ratio" not in d:  # written before profiles and replay_ratio: safe, mild, updates per step
+            d.update(profile=d.get("profile", "safe"), adversary=d.get("adversary", "mild"), replay_ratio=None)
+            d["legacy_updates_per_step"] = d.pop("updates_per_step", 4)
         return Job(**d)
 
 
@@ -222,14 +245,16 @@ def study_jobs(budget: Budget | str, methods: tuple[str, ...] | None = None,
         need(OURS, ABLATION_SCENE, "table6", (option,))
 
     jobs = []
-    for (method, scene, options), artefacts in wanted.items():
-        levels = b.group1_levels if "group1_deployment" in artefacts else (TRAIN_TRAFFIC,)
-        if TRAIN_TRAFFIC not in levels:  # Table 5's two-lane column is evaluated at the training level
-            levels = tuple(sorted({*levels, TRAIN_TRAFFIC}, key=list(TRAFFIC_LEVELS).index))
-        jobs.append(Job(method=method, scene=scene, options=options, seeds=b.seeds, steps=b.steps, envs=b.envs,
-                        learning_starts=b.learning_starts, batch_size=b.batch_size,
-                        replay_ratio=b.replay_ratio, checkpoint_every=b.checkpoint_every,
-                        eval_levels=levels, eval_episodes=b.eval_episodes, artefacts=tuple(sorted(artefacts))))
+    for profile in b.profiles:
+        for (method, scene, options), artefacts in wanted.items():
+            levels = b.group1_levels if "group1_deployment" in artefacts else (TRAIN_TRAFFIC,)
+            if TRAIN_TRAFFIC not in levels:  # Table 5's two-lane column is evaluated at the training level
+                levels = tuple(sorted({*levels, TRAIN_TRAFFIC}, key=list(TRAFFIC_LEVELS).index))
+            jobs.append(Job(method=method, scene=scene, options=options, seeds=b.seeds, steps=b.steps, envs=b.envs,
+                            learning_starts=b.learning_starts, batch_size=b.batch_size,
+                            replay_ratio=b.replay_ratio, checkpoint_every=b.checkpoint_every,
+                            eval_levels=levels, eval_episodes=b.eval_episodes, artefacts=tuple(sorted(artefacts)),
+                            profile=profile, adversary=STUDY_ADVERSARY))
     jobs.sort(key=lambda j: (-j.cost(), j.id))
     return jobs
 

@@ -245,7 +245,7 @@ def build_blocks(root: Path, results: T.Results, tables: dict[str, T.Table], fig
     for path in figures:
         if path.suffix == ".png":
             blocks.append(("img", path.relative_to(root).as_posix(), path.stem.replace("_", " ")))
-    for name in ("table5", "table6", "group1_deployment", "group2", "multilane", "group3"):
+    for name in T.REPORT_TABLES:
         t = tables[name]
         blocks.append(("h2", t.title))
         blocks.append(("table", t))
@@ -255,6 +255,17 @@ def build_blocks(root: Path, results: T.Results, tables: dict[str, T.Table], fig
         blocks.append(("h2", t.title))
         blocks.append(("table", t))
         blocks.append(("p", f"Files: `figures/{name}.csv`, `figures/{name}.md`."))
+    for other in results.beyond():
+        blocks.append(("h2", f"Beyond the paper: the same study under the `{other.profile}` control profile"))
+        blocks.append(("p", f"Not part of the reproduction. The same jobs, traffic and adversary with our safety "
+                            f"additions to the mappings on (docs/paper-notes.md, 'Profiles: paper vs safe'); run "
+                            f"folders under `runs/{other.profile}/`. The claims above are judged on the paper "
+                            "profile only."))
+        for name in (*T.REPORT_TABLES, "training_pareto"):
+            t = tables[f"{name}_{other.profile}"]
+            blocks.append(("h2", t.title))
+            blocks.append(("table", t))
+            blocks.append(("p", f"Files: `tables/{t.name}.csv`, `tables/{t.name}.md`."))
     not_done = [(job_id, j) for job_id, j in sorted(results.state.get("jobs", {}).items()) if j.get("status") != "done"]
     blocks.append(("h2", "Jobs not done"))
     if not_done:

@@ -284,7 +284,7 @@ def _settings_of(config: dict) -> dict:
 def reproduce(budget: str, out: str | Path, jobs: int | None = None, executor: str = "local",
               address: str | None = None, device: str = "cpu", methods: tuple[str, ...] | None = None,
               scenes: tuple[str, ...] | None = None, seeds: tuple[int, ...] | None = None,
-              work: Work = run_job, log: Callable[[str], None] = print, report: bool = True,
+              profiles: tuple[str, ...] | None = None, work: Work = run_job, log: Callable[[str], None] = print, report: bool = True,
               progress: bool = False) -> dict:
     """Run every pending job of the study at `budget` in `out`, then write the tables, figures and report.
 
@@ -302,6 +302,14 @@ def reproduce(budget: str, out: str | Path, jobs: int | None = None, executor: s
         if not seeds or len(set(seeds)) != len(seeds) or any(s < 0 for s in seeds):
             raise ValueError(f"--seeds must be distinct non-negative integers, got {','.join(map(str, seeds))}")
         b = replace(b, seeds=tuple(seeds))
+    if profiles is not None:  # like the seeds, part of the budget's settings: a folder never mixes sets
+        from highway_srl.rules import PROFILES
+
+        unknown = [p for p in profiles if p not in PROFILES]
+        if not profiles or unknown or len(set(profiles)) != len(profiles) or profiles[0] != "paper":
+            raise ValueError(f"--profiles takes distinct names of {', '.join(PROFILES)}, paper first (the "
+                             f"reproduction), got {','.join(profiles)}")
+        b = replace(b, profiles=tuple(profiles))
     if executor not in EXECUTORS:
         raise ValueError(f"unknown executor {executor!r}; choose one of {', '.join(EXECUTORS)}")
     if address and executor != "ray":

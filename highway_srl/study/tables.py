@@ -69,6 +69,9 @@ class Result:
             out[f"{key}_sd"] = sd([s[key]["value"] for s in per_seed])
         out["collision_rate"] = 1.0 - out["C_r"]
         out["collision_rate_sd"] = out["C_r_sd"]
+        adversary = lv.get("adversary") or {}  # group 3: per episode, pooled over runs
+        out["adv_triggers"] = adversary.get("triggers_per_episode")
+        out["adv_cut_ins"] = adversary.get("cut_ins_per_episode")
         return out
 
     def episodes(self) -> list[dict]:
@@ -78,11 +81,20 @@ class Result:
 class Results:
     """Every job of a study folder, looked up by (method, scene, options)."""
 
-    def __init__(self, root: Path, state: dict, results: list[Result]):
-        self.root, self.state = root, state
-        self.by_key = {(r.job.method, r.job.scene, r.job.options): r for r in results}
+    def __init__(self, root: Path, state: dict, results: list[Result], profile: str | None = None):
+        """profile None: the reproduction's jobs (the paper profile's, or every job of a study written before
+        profiles); a name: that profile's set beyond the paper."""
+        self.root, self.state, self.every, self.profile = root, state, results, profile
+        mine = [r for r in results if (r.job.profile == profile and r.job.beyond_the_paper if profile
+                                       else not r.job.beyond_the_paper)]
+        self.by_key = {(r.job.method, r.job.scene, r.job.options): r for r in mine}
         self.budget = state.get("budget")
         self.levels = tuple(state.get("budget_config", {}).get("group1_levels") or TRAFFIC_LEVELS)
+
+    def beyond(self) -> list["Results"]:
+        """The other profiles' sets of the study, in the order they were run."""
+        names = dict.fromkeys(r.job.profile for r in self.every if r.job.beyond_the_paper)
+        return [Results(self.root, self.state, self.every, p) for p in names]
 
     def get(self, method: str, scene: str, options: tuple[str, ...] = ()) -> Result | None:
         return self.by_key.get((method, scene, tuple(options)))
@@ -272,6 +284,7 @@ def _runs_rows(results: Results, scenes, methods) -> list[dict]:
                    "T_c": t.get("T_c"), "T_c_sd": t.get("T_c_sd")}
             for k in ("C_r", "collision_rate", "avg_speed", "R_r", "R_s"):
                 row[k], row[f"{k}_sd"] = d.get(k), d.get(f"{k}_sd")
+            row["adv_triggers"], row["adv_cut_ins"] = d.get("adv_triggers"), d.get("adv_cut_ins")
             rows.append(row)
     return rows
 
@@ -292,9 +305,13 @@ def _runs_table(name: str, title: str, rows: list[dict]) -> Table:
              Column("T_c", "T_c", render=_with_sd("f3", "T_c"))]
     shown += [Column(k, f"{headers[k]} (± sd over runs)", render=_with_sd(kinds[k], k))
               for k in keys if k != "collision_rate"]
-    return Table(name, title, cols, rows, display=Table("", "", shown, rows),
+    adversary = [Column("adv_triggers", "adversary triggers / episode", "f2"),
+                 Column("adv_cut_ins", "cut-ins / episode", "f2")]
+    return Table(name, title, cols + adversary, rows, display=Table("", "", shown + adversary, rows),
                  notes=["Mean over all runs' episodes; ± is the standard deviation over runs (seeds), shown when "
-                        "there are two or more. R_s: merging and exiting only."])
+                        "there are two or more. R_s: merging and exiting only. Adversary triggers / cut-ins: "
+                        "group-3 trigger draws and forced lane changes per deployment episode (adversarial "
+                        "scenes, our simulator)."])
 
 
 def group2(results: Results) -> Table:
@@ -518,6 +535,17 @@ def training_curves(results: Results) -> tuple[Table, dict]:
     return table, series
 
 
+REPORT_TABLES = ("table5", "table6", "group1_deployment", "group2", "multilane", "group3")
+
+
 def all_tables(results: Results) -> dict[str, Table]:
-    return {t.name: t for t in (group1_deployment(results), group2(results), multilane(results), group3(results),
-                                table5(results), table6(results))}
+    """The reproduction's tables, then each other profile's as NAME_PROFILE, titled "Beyond the paper"."""
+    out = {t.name: t for t in (group1_deployment(results), group2(results), multilane(results), group3(results),
+                               table5(results), table6(results))}
+    for other in results.beyond():
+        for t in (group1_deployment(other), group2(other), multilane(other), group3(other), table5(other),
+                  table6(other), training(other)):
+            t.name = f"{t.name}_{other.profile}"
+            t.title = f"Beyond the paper ({other.profile} profile): {t.title}"
+            out[t.name] = t
+    return out

@@ -15,9 +15,11 @@ from highway_srl.study.jobs import (ABLATIONS, ARTEFACTS, BUDGETS, GROUP1_METHOD
 @pytest.mark.parametrize("budget", list(BUDGETS))
 def test_every_artefact_has_all_its_jobs_at_every_budget(budget):
     b = BUDGETS[budget]
-    jobs = study_jobs(budget)
+    every = study_jobs(budget)
+    assert len(every) == len({j.id for j in every}) == len({j.folder for j in every})
+    jobs = [j for j in every if j.profile == "paper"]
     by = {(j.method, j.scene, j.options): j for j in jobs}
-    assert len(by) == len(jobs) == len({j.id for j in jobs}) == len({j.folder for j in jobs})
+    assert len(by) == len(jobs)
     assert {a for j in jobs for a in j.artefacts} == set(ARTEFACTS)
     for m in GROUP1_METHODS:  # group 1: every method on two-lane, deployed at the budget's levels
         j = by[(m, "two-lane", ())]
@@ -39,6 +41,27 @@ def test_every_artefact_has_all_its_jobs_at_every_budget(budget):
     assert len(jobs) == 8 + 5 * 6 + 2 + 3
     for j in jobs:
         assert (j.steps, j.envs, j.seeds, j.eval_episodes) == (b.steps, b.envs, b.seeds, b.eval_episodes)
+    # each further profile repeats the reproduction's jobs in its own folders, beyond the paper
+    assert b.profiles[0] == "paper" and len(every) == len(jobs) * len(b.profiles)
+    for j in every:
+        assert j.adversary == "paper" and j.folder.startswith("runs/" if j.profile == "paper" else f"runs/{j.profile}/")
+
+
+def test_quick_and_paper_budgets_add_the_safe_profile_beyond_the_paper_and_smoke_does_not():
+    assert BUDGETS["smoke"].profiles == ("paper",)
+    assert BUDGETS["quick"].profiles == BUDGETS["paper"].profiles == ("paper", "safe")
+    job = next(j for j in study_jobs("quick") if j.profile == "safe" and j.method == "rl" and j.scene == "two-lane")
+    assert job.id == "safe:two-lane/rl" and job.folder == "runs/safe/two-lane/rl" and job.beyond_the_paper
+    cfg = job.train_config("cpu")
+    assert (cfg.profile, cfg.adversary, cfg.replay_ratio) == ("safe", "paper", BUDGETS["quick"].replay_ratio)
+
+
+def test_a_job_written_before_profiles_reads_as_safe_mild_with_its_update_count_in_its_old_folder():
+    job = Job.from_dict({"method": "rl", "scene": "two-lane", "seeds": [0], "updates_per_step": 1})
+    assert (job.profile, job.adversary, job.replay_ratio, job.legacy_updates_per_step) == ("safe", "mild", None, 1)
+    assert job.folder == "runs/two-lane/rl" and not job.beyond_the_paper
+    cfg = job.train_config("cpu")
+    assert (cfg.replay_ratio, cfg.updates_per_step, cfg.profile) == (None, 1, "safe")
 
 
 def test_paper_budget_is_the_papers():
