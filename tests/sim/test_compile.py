@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import fields
 
 import pytest
@@ -14,6 +15,8 @@ from highway_srl.sim.world import astuple_shallow, step_state
 # (scenario, adversary): None nominal, "mild" or "paper" (World's adversary)
 VARIANTS = [(sc, adv) for sc in ("two-lane", "multi-lane", "merge", "exit") for adv in (None, "mild")]
 VARIANTS += [("two-lane", "paper"), ("merge", "paper")]
+# the graph checks trace or run the capture (seconds each): every scenario once, every adversary once
+GRAPH_VARIANTS = [("two-lane", None), ("multi-lane", "mild"), ("merge", "paper"), ("exit", "mild")]
 
 
 def _world(scenario, adversary, traffic="D", seed=11, **kw) -> World:
@@ -48,7 +51,7 @@ def _assert_close_state(a: World, b: World, where: str) -> None:
 @pytest.mark.parametrize("scenario,adversarial", VARIANTS)
 def test_static_step_is_bit_identical_to_the_compact_step_in_eager(scenario, adversarial):
     ref, static = _world(scenario, adversarial), _world(scenario, adversarial)
-    for t in range(300):
+    for t in range(160):  # past the first recycles, refused changes and (adversarial) cut-ins
         lane, speed = _commands(ref, t)
         e_ref = ref.step(lane, speed)
         with torch.inference_mode():
@@ -63,7 +66,7 @@ def test_static_step_is_bit_identical_to_the_compact_step_in_eager(scenario, adv
             assert torch.equal(getattr(ref.state, f.name), getattr(static.state, f.name)), (t, f.name)
 
 
-@pytest.mark.parametrize("scenario,adversarial", VARIANTS)
+@pytest.mark.parametrize("scenario,adversarial", GRAPH_VARIANTS)
 def test_compiled_step_is_one_graph_and_no_break(scenario, adversarial):
     world = _world(scenario, adversarial, traffic="C", seed=0, compile="eager")
     lane, speed = world._commands(world.ego_lane, torch.full((ENVS,), 8.0))
@@ -73,14 +76,17 @@ def test_compiled_step_is_one_graph_and_no_break(scenario, adversarial):
     assert (out.graph_count, out.graph_break_count) == (1, 0), out.break_reasons
 
 
-@pytest.mark.parametrize("scenario,adversarial", VARIANTS)
+@pytest.mark.parametrize("scenario,adversarial", GRAPH_VARIANTS)
 def test_captured_graph_follows_eager(scenario, adversarial):
-    """torch.compile's capture (aot_eager: the functional graph, run eagerly; 0.15 s a step, so 40 steps
-    here: the static form itself is checked over 300 steps above), from eager's state each step."""
-    _follow(scenario, adversarial, "aot_eager", steps=40)
+    """torch.compile's capture (aot_eager: the functional graph, run eagerly; 0.15 s a step, so 30 steps
+    here: the static form itself is checked step by step above), from eager's state each step."""
+    _follow(scenario, adversarial, "aot_eager", steps=30)
 
 
 @pytest.mark.slow
+@pytest.mark.skipif(os.environ.get("HIGHWAY_SRL_INDUCTOR_TESTS") != "1",
+                    reason="about 5 min of C++ compilation on a cold cache, more than the suite's budget; "
+                           "run with HIGHWAY_SRL_INDUCTOR_TESTS=1 (docs/benchmarks.md)")
 def test_inductor_compiled_step_follows_eager_to_float_rounding():
     """The generated C++ kernels (minutes of compilation on a cold cache, hence slow)."""
     _follow("merge", "mild", True, steps=200)
