@@ -4,6 +4,9 @@ Every number is read from files the training and evaluation code wrote (metrics.
 episodes.jsonl); nothing is typed in here except the paper's own numbers (paper_numbers.py), shown beside
 ours. Spread over runs is the sample standard deviation over seeds (the paper's "10 independent runs");
 C_r, R_r, R_s pool every run's episodes, with the 95% intervals of highway_srl.rules.metrics.
+
+Over 400 lines on purpose: one short builder per table of the paper (5, 6, multi-lane, groups 1-3,
+training) plus the shared cell formatting; split apart, each table would lose sight of the format it shares.
 """
 
 from __future__ import annotations
