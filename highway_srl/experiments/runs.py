@@ -77,9 +77,9 @@ def run_folder(path: str | Path) -> Path:
     return p
 
 
-def run_config(folder: Path) -> dict:
+def run_config(folder: str | Path) -> dict:
     """config.json of a run folder, checked to be {"config": {...the TrainConfig...}, ...}."""
-    path = folder / "config.json"
+    path = Path(folder) / "config.json"
     data = read_json(path)
     config = data.get("config") if isinstance(data, dict) else None
     if not isinstance(config, dict):
