@@ -91,8 +91,9 @@ class StudyProgress:
         with self.lock:
             done = sum(1.0 if j.id in self.finished else job_fraction(self.root, j) for j in self.jobs)
             if done > self.shown:  # never backwards (a resumed job's log may restart below its old row)
-                self.bar.update(round(done - self.shown, 4))
                 self.shown = done
+                # set, not update: a sum of float increments would print as 0.39999999999999997/86
+                self.bar.n = round(done, 2)
             self.bar.refresh()
 
     def _run(self) -> None:

@@ -88,3 +88,27 @@ def test_verdict_and_dominance_rules():
     claim = Claim("k", "s", "c", [Check("a", True, ""), Check("b", None, "")])
     assert claim.verdict == "confirmed where checked (1 of 2)"
     assert Claim("k", "s", "c", []).verdict == "cannot be checked"
+
+
+def test_a_study_of_both_profiles_judges_the_claims_on_the_paper_profile_and_reports_safe_beside_it(tmp_path):
+    # issue 12: the paper profile is the reproduction; the safe profile's set is written beside it, labelled,
+    # and never decides a verdict. Ours loses under the paper profile here and wins under the safe one.
+    root = tmp_path / "study"
+    worse = {"T_c": 0.2, "rise": 0.95, "C_r": 0.4, "speed": 4.0, "R_r": 20.0, "R_s": 0.1}
+    state = reproduce("smoke", root, jobs=1, work=fakes.fake_work, profiles=("paper", "safe"), methods=(OURS,),
+                      log=lambda s: None, report=False)
+    ids = list(state["jobs"])
+    assert len(ids) == 22 and sum(i.startswith("safe:") for i in ids) == 11
+    assert (root / "runs/safe/two-lane/moe-rm-srl/eval.json").exists()
+    _rewrite(root, lambda job: worse if (job.profile == "paper" and not job.options) else None)
+    assert _verdicts(root)["collision_free_training"] == "not confirmed"  # load_results: the paper set
+    write_report(root)
+    report = (root / "report.md").read_text()
+    assert "Beyond the paper: the same study under the `safe` control profile" in report
+    assert "MoE-RM-SRL trains without collisions" in report and "**not confirmed**" in report
+    for name in ("table5", "table6", "group1_deployment"):
+        assert (root / "tables" / f"{name}.csv").exists() and (root / "tables" / f"{name}_safe.csv").exists()
+    paper_t5 = (root / "tables" / "table5.csv").read_text()
+    safe_t5 = (root / "tables" / "table5_safe.csv").read_text()
+    assert "Two-lane,two-lane,T_c,MoE-RM-SRL,moe-rm-srl,done,0.2," in paper_t5
+    assert "Two-lane,two-lane,T_c,MoE-RM-SRL,moe-rm-srl,done,1," in safe_t5

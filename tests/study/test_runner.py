@@ -195,6 +195,11 @@ def test_study_progress_counts_running_jobs_by_their_logs_and_ends_at_the_total(
     try:
         bar.refresh()
         assert bar.bar.n == pytest.approx(0.5)
+        for rows in ("1400", "1600"):  # 0.35 then 0.4: float increments would show 0.39999999999999997
+            (tmp_path / jobs[0].folder / "scalars.csv").write_text(f"env_steps\n{rows}\n")
+            bar.shown = 0.0
+            bar.refresh()
+        assert "0.4/2" in str(bar.bar)
         bar.job_finished(jobs[0])
         bar.job_finished(jobs[1])
         assert bar.bar.n == pytest.approx(2.0) and bar.bar.n <= bar.bar.total
