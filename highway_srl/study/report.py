@@ -17,6 +17,7 @@ from pathlib import Path
 from highway_srl.study import figures as F
 from highway_srl.study import tables as T
 from highway_srl.study.paper_numbers import TABLE5
+from highway_srl.study.side_by_side import side_by_side
 from highway_srl.experiments.runs import provenance
 from highway_srl.study.jobs import (ABLATION_SCENE, ABLATIONS, BUDGETS, GROUP1_METHODS, METHOD_LABELS, OURS,
                                            SCENES, TABLE5_METHODS, TABLE5_SCENES, TRAIN_TRAFFIC)
@@ -230,6 +231,11 @@ def _setting(results: T.Results) -> list[str]:
     return lines
 
 
+def table_blocks(t: T.Table, folder: str) -> list[tuple]:
+    """A table's heading, the table and where its files are."""
+    return [("h2", t.title), ("table", t), ("p", f"Files: `{folder}/{t.name}.csv`, `{folder}/{t.name}.md`.")]
+
+
 def build_blocks(root: Path, results: T.Results, tables: dict[str, T.Table], figures: list[Path]) -> list[tuple]:
     blocks: list[tuple] = [("h1", "MoE-RM-SRL study: our runs beside the paper")]
     blocks.append(("ul", _setting(results)))
@@ -246,15 +252,9 @@ def build_blocks(root: Path, results: T.Results, tables: dict[str, T.Table], fig
         if path.suffix == ".png":
             blocks.append(("img", path.relative_to(root).as_posix(), path.stem.replace("_", " ")))
     for name in T.REPORT_TABLES:
-        t = tables[name]
-        blocks.append(("h2", t.title))
-        blocks.append(("table", t))
-        blocks.append(("p", f"Files: `tables/{name}.csv`, `tables/{name}.md`."))
+        blocks += table_blocks(tables[name], "tables")
     for name in ("training_pareto", "training_curves"):
-        t = tables[name]
-        blocks.append(("h2", t.title))
-        blocks.append(("table", t))
-        blocks.append(("p", f"Files: `figures/{name}.csv`, `figures/{name}.md`."))
+        blocks += table_blocks(tables[name], "figures")
     for other in results.beyond():
         blocks.append(("h2", f"Beyond the paper: the same study under the `{other.profile}` control profile"))
         blocks.append(("p", f"Not part of the reproduction. The same jobs, traffic and adversary with our safety "
@@ -262,10 +262,9 @@ def build_blocks(root: Path, results: T.Results, tables: dict[str, T.Table], fig
                             f"folders under `runs/{other.profile}/`. The claims above are judged on the paper "
                             "profile only."))
         for name in (*T.REPORT_TABLES, "training_pareto"):
-            t = tables[f"{name}_{other.profile}"]
-            blocks.append(("h2", t.title))
-            blocks.append(("table", t))
-            blocks.append(("p", f"Files: `tables/{t.name}.csv`, `tables/{t.name}.md`."))
+            blocks += table_blocks(tables[f"{name}_{other.profile}"], "tables")
+    if "side_by_side" in tables:
+        blocks += table_blocks(tables["side_by_side"], "tables")
     not_done = [(job_id, j) for job_id, j in sorted(results.state.get("jobs", {}).items()) if j.get("status") != "done"]
     blocks.append(("h2", "Jobs not done"))
     if not_done:
@@ -339,6 +338,8 @@ def write_report(root: str | Path) -> Path:
     root = Path(root)
     results = T.load_results(root)
     tables = T.all_tables(results)
+    if results.beyond():  # every printed cell: paper | ours (paper profile) | ours (each other profile)
+        tables["side_by_side"] = side_by_side(results)
     for t in tables.values():
         t.write(root / "tables")
     figures, figure_tables = F.all_figures(results, root / "figures")

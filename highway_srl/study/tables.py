@@ -132,7 +132,7 @@ def sd(values) -> float | None:
 # --------------------------------------------------------------------------------------------- table type
 
 
-def _fmt(kind: str, value) -> str:
+def fmt(kind: str, value) -> str:
     if value is None or value == "" or (isinstance(value, float) and math.isnan(value)):
         return "–"
     if kind == "pct":
@@ -179,7 +179,7 @@ class Table:
     def formatted(self) -> tuple[list[str], list[list[str]]]:
         """Headers and formatted cells of the Markdown shape (`display` if given)."""
         t = self.display or self
-        cells = [[c.render(row) if c.render else _fmt(c.kind, row.get(c.key)) for c in t.columns] for row in t.rows]
+        cells = [[c.render(row) if c.render else fmt(c.kind, row.get(c.key)) for c in t.columns] for row in t.rows]
         return [c.header for c in t.columns], cells
 
     def markdown(self, heading: bool = True) -> str:
@@ -220,16 +220,16 @@ def _status(res: Result | None) -> str:
 
 
 def _both(kind: str, key: str, paper_key: str) -> Callable[[dict], str]:
-    return lambda row: f"{_fmt(kind, row.get(key))} / {_fmt(kind, row.get(paper_key))}"
+    return lambda row: f"{fmt(kind, row.get(key))} / {fmt(kind, row.get(paper_key))}"
 
 
 def _with_sd(kind: str, key: str) -> Callable[[dict], str]:
     spread = "pp" if kind == "pct" else "sd"
 
     def render(row: dict) -> str:
-        s = _fmt(kind, row.get(key))
+        s = fmt(kind, row.get(key))
         if row.get(f"{key}_sd") is not None:
-            s += f" {_fmt(spread, row[f'{key}_sd'])}"
+            s += f" {fmt(spread, row[f'{key}_sd'])}"
         return s
     return render
 
@@ -240,7 +240,7 @@ def _with_ci(kind: str, key: str) -> Callable[[dict], str]:
             return "–"
         lo, hi = row.get(f"{key}_low"), row.get(f"{key}_high")
         inner = kind if kind != "pct" else "pct"
-        return f"{_fmt(kind, row[key])} [{_fmt(inner, lo)}, {_fmt(inner, hi)}]"
+        return f"{fmt(kind, row[key])} [{fmt(inner, lo)}, {fmt(inner, hi)}]"
     return render
 
 
@@ -350,10 +350,10 @@ def multilane(results: Results) -> Table:
 
     def cell(col: str) -> Callable[[dict], str]:
         def render(row):
-            s = _fmt(row["kind"], row.get(col))
+            s = fmt(row["kind"], row.get(col))
             if row.get(f"{col}_sd") is not None:
-                s += " " + _fmt("pp" if row["kind"] == "pct" else "sd", row[f"{col}_sd"])
-            return f"{s} / {_fmt(row['kind'], row[f'{col}_paper'])}"
+                s += " " + fmt("pp" if row["kind"] == "pct" else "sd", row[f"{col}_sd"])
+            return f"{s} / {fmt(row['kind'], row[f'{col}_paper'])}"
         return render
     shown = [Column("metric", "metric"), Column("normal", "normal: ours / paper", render=cell("normal")),
              Column("adversarial", "adversarial: ours / paper", render=cell("adversarial"))]
@@ -392,7 +392,7 @@ def table5(results: Results) -> Table:
                 rows.append({"scene": SCENES[scene].label, "scene_key": scene, "metric": metric,
                              "method": METHOD_LABELS[m], "method_key": m, "status": _status(res), "ours": ours,
                              "ours_sd": spread, "paper": paper_value})
-                wrow[m] = f"{_fmt(T5_KINDS[metric], ours)} / {_fmt(T5_KINDS[metric], paper_value)}"
+                wrow[m] = f"{fmt(T5_KINDS[metric], ours)} / {fmt(T5_KINDS[metric], paper_value)}"
             wide.append(wrow)
     cols = [Column("scene", "scene"), Column("scene_key", "scene key"), Column("metric", "metric"),
             Column("method", "method"), Column("method_key", "method key"), Column("status", "status"),

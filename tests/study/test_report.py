@@ -112,3 +112,29 @@ def test_a_study_of_both_profiles_judges_the_claims_on_the_paper_profile_and_rep
     safe_t5 = (root / "tables" / "table5_safe.csv").read_text()
     assert "Two-lane,two-lane,T_c,MoE-RM-SRL,moe-rm-srl,done,0.2," in paper_t5
     assert "Two-lane,two-lane,T_c,MoE-RM-SRL,moe-rm-srl,done,1," in safe_t5
+    side = (root / "tables" / "side_by_side.md").read_text()
+    assert "| Ours (paper profile) | Ours (safe profile) |" in side
+    # Table 5, two-lane T_c of ours: paper 1.000, ours 0.200 under the paper profile, 1.000 under safe
+    assert "| Table 5 | Two-lane | T_c | MoE-RM-SRL | 1.000 | 0.200 | 1.000 |" in side
+    assert "| Table 6 | Adv. two-lane | C_r | w/o MAP | 37.7% |" in side
+    assert "| Multi-lane | Multi-lane (normal) | Collision rate | MoE-RM-SRL | 0.0% |" in side
+    assert "side_by_side" in report and "Every cell of Tables 5, 6 and the multi-lane table" in report
+
+
+def test_side_by_side_cells_carry_the_spread_over_seeds_and_the_deployment_interval():
+    from pathlib import Path
+
+    from highway_srl.study.jobs import Job
+    from highway_srl.study.side_by_side import cell
+    from highway_srl.study.tables import Result
+
+    assert cell(None, "T_c") == (None, "–")
+    res = Result(Job(OURS, "two-lane", steps=100, seeds=(0, 1)), "done", None, Path("x"),
+                 metrics={"mean": {"T_c": 0.9}, "per_seed": {"0": {"T_c": 0.8}, "1": {"T_c": 1.0}}},
+                 evaluation={"levels": {"C": {"episodes": 40, "C_r": {"value": 0.95, "low": 0.83, "high": 0.99},
+                                              "R_r": {"value": 200.0, "low": 190.0, "high": 210.0},
+                                              "avg_speed": {"value": 7.0, "low": 6.5, "high": 7.5}}}})
+    assert cell(res, "T_c") == (0.9, "0.900 ±0.14")
+    assert cell(res, "C_r") == (0.95, "95.0% [83.0%, 99.0%]")
+    value, text = cell(res, "collision_rate")
+    assert value == pytest.approx(0.05) and text == "5.0% [1.0%, 17.0%]"
