@@ -6,7 +6,6 @@ import torch
 
 from highway_srl.agents.registry import make_method
 from highway_srl.constants import VEHICLE_LENGTH_M
-from highway_srl.rules import SafetyLayer
 from highway_srl.sim import World
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.adversary import paper_cut_ins
@@ -111,11 +110,11 @@ def test_unknown_adversary_is_a_value_error_naming_the_choices():
         World("two-lane", adversary="harsh")
 
 
-def rule_based_collisions(adversary: str) -> tuple[int, int]:
+def rule_based_collisions(adversary: str, profile: str = "paper") -> tuple[int, int]:
     torch.set_num_threads(1)
     world = World("two-lane", "C", True, 100, "cpu", 10**9, adversary=adversary)
-    method = make_method("rule-based", "two-lane", 1)
-    layer = SafetyLayer(world.road, **method.layer_options)
+    method = make_method("rule-based", "two-lane", 1, profile=profile)
+    layer = method.make_layer(world.road)
     alive, collided = torch.ones(100, dtype=torch.bool), torch.zeros(100, dtype=torch.bool)
     cut_ins = torch.zeros(100, dtype=torch.long)
     step = layer.observe(world)
@@ -129,11 +128,13 @@ def rule_based_collisions(adversary: str) -> tuple[int, int]:
     return int(collided.sum()), int(cut_ins.sum())
 
 
-def test_paper_adversary_makes_the_rule_based_driver_collide_where_the_mild_one_rarely_does():
+def test_paper_adversary_makes_the_rule_based_driver_collide_where_the_mild_one_does_not():
     """The issue's check: 100 adversarial two-lane level-C episodes (evaluation seeds 10^9...) of the
-    rule-based driver. Paper adversary: C_r < 100 % (4 collisions when written). Mild: 1 collision (a
-    near-standing SV cut in 6 m ahead of an 8 m/s ego; Table 1 sees it only once it nears the boundary)."""
+    rule-based driver under its default (paper) profile. Paper adversary: C_r < 100 % (4 collisions when
+    written); mild: C_r 100 %. (Under the safe profile the mild adversary's 100 episodes hold one collision:
+    a forced SV crawling at 1.5 m/s from 15 m ahead turns in at up to 0.58 rad and its corner reaches the
+    ego while its centre is still in its own lane, where no lane-based ID mapping sees it; docs/paper-notes.md.)"""
     paper, paper_cut = rule_based_collisions("paper")
     mild, mild_cut = rule_based_collisions("mild")
-    assert paper > 0 and paper > mild and mild <= 1
+    assert paper > 0 and mild == 0
     assert paper_cut > 0 and mild_cut > 0
