@@ -255,7 +255,8 @@ def study_jobs(budget: Budget | str, methods: tuple[str, ...] | None = None,
                             replay_ratio=b.replay_ratio, checkpoint_every=b.checkpoint_every,
                             eval_levels=levels, eval_episodes=b.eval_episodes, artefacts=tuple(sorted(artefacts)),
                             profile=profile, adversary=STUDY_ADVERSARY))
-    jobs.sort(key=lambda j: (-j.cost(), j.id))
+    # the reproduction's profile first (an interrupted study has the paper's set before ours), then most costly
+    jobs.sort(key=lambda j: (b.profiles.index(j.profile), -j.cost(), j.id))
     return jobs
 
 

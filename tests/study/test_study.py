@@ -45,6 +45,9 @@ def test_every_artefact_has_all_its_jobs_at_every_budget(budget):
     assert b.profiles[0] == "paper" and len(every) == len(jobs) * len(b.profiles)
     for j in every:
         assert j.adversary == "paper" and j.folder.startswith("runs/" if j.profile == "paper" else f"runs/{j.profile}/")
+    # the reproduction's jobs come first: a study stopped half-way has the paper profile's set, not ours
+    profiles = [j.profile for j in every]
+    assert profiles == sorted(profiles, key=b.profiles.index)
 
 
 def test_quick_and_paper_budgets_add_the_safe_profile_beyond_the_paper_and_smoke_does_not():
