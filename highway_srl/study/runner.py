@@ -74,6 +74,9 @@ class StudyProgress:
         self.finished: set[str] = set()
         self.shown = 0.0
         self.bar = progress_bar(len(self.jobs), "study", unit="job", enabled=enabled and bool(self.jobs))
+        if self.bar is not None:  # resumed jobs' earlier steps: shown as done, but not as this run's rate
+            self.shown = sum(job_fraction(root, j) for j in self.jobs)
+            self.bar.initial = self.bar.n = round(self.shown, 2)
         self.stop = threading.Event()
         self.lock = threading.Lock()
         self.thread = threading.Thread(target=self._run, daemon=True) if self.bar is not None else None

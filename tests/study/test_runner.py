@@ -193,6 +193,7 @@ def test_study_progress_counts_running_jobs_by_their_logs_and_ends_at_the_total(
     (tmp_path / jobs[0].folder / "scalars.csv").write_text("env_steps\n2000\n")
     bar = StudyProgress(tmp_path, jobs, enabled=True, interval_s=60.0)
     try:
+        assert bar.bar.initial == bar.bar.n == pytest.approx(0.5)  # a resumed job's steps: not this run's rate
         bar.refresh()
         assert bar.bar.n == pytest.approx(0.5)
         for rows in ("1400", "1600"):  # 0.35 then 0.4: float increments would show 0.39999999999999997
