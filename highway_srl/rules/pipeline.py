@@ -37,6 +37,7 @@ from highway_srl.rules.mappings import (
     fill_defaults,
     id_mapping,
     lane_exists,
+    crossing_toward,
     near_boundary,
     rule_mapping,
     target_lane_local,
@@ -67,7 +68,9 @@ class ControlProfile:
     LaneChange behind an unsafe SV1 (R*1 = 0) brakes as Slower; finish_in_window: a change is started or held
     only if it ends before the road's change window closes; straddle_grouping: an ego near the boundary
     occupies both lanes (R*1 ∧ R*2, R*3 ∧ R*4); standstill_gap_m: margin taken off every bumper gap before
-    the SD rule. docs/paper-notes.md, "Profiles: paper vs safe", gives each with the crash that motivated it.
+    the SD rule; turning_in_is_near: an SV whose body crosses the lane line while it heads toward the ego's
+    side is near it in Eq. 31 (mappings.crossing_toward). docs/paper-notes.md, "Profiles: paper vs safe",
+    gives each with the crash that motivated it.
     """
 
     abort_unsafe_change: bool
@@ -75,13 +78,14 @@ class ControlProfile:
     finish_in_window: bool
     straddle_grouping: bool
     standstill_gap_m: float
+    turning_in_is_near: bool
 
 
 # paper: Eqs. 31-35 as printed plus only the readings they cannot work without (holding a change under way);
 # safe: the project's additions on top, each justified by a measured crash.
 PROFILES: dict[str, ControlProfile] = {
-    "paper": ControlProfile(False, False, False, False, 0.0),
-    "safe": ControlProfile(True, True, True, True, STANDSTILL_GAP_M),
+    "paper": ControlProfile(False, False, False, False, 0.0, False),
+    "safe": ControlProfile(True, True, True, True, STANDSTILL_GAP_M, True),
 }
 
 
@@ -188,6 +192,7 @@ class SafetyLayer:
         finish_in_window: bool | None = None,
         standstill_gap_m: float | None = None,
         straddle_grouping: bool | None = None,
+        turning_in_is_near: bool | None = None,
         reaction_s: float = DT_S,
         ego_brake_mps2: float = EGO_BRAKE_MAX_MPS2,
         sv_brake_mps2: float = SV_BRAKE_MAX_MPS2,
@@ -206,6 +211,7 @@ class SafetyLayer:
         self.finish_in_window = pick(finish_in_window, prof.finish_in_window)
         self.standstill_gap_m = pick(standstill_gap_m, prof.standstill_gap_m)
         self.straddle_grouping = pick(straddle_grouping, prof.straddle_grouping)
+        self.turning_in_is_near = pick(turning_in_is_near, prof.turning_in_is_near)
         self.reaction_s, self.ego_brake, self.sv_brake = reaction_s, ego_brake_mps2, sv_brake_mps2
         self.rm = highway_reward_machine()
         self.target_lane: torch.Tensor | None = None  # (B,) long global T*; -1: not yet known
@@ -288,6 +294,8 @@ class SafetyLayer:
         sv_y_local = veh.y - base_y[:, None]
         m_l_ego = near_boundary(ego_y_local, snap.ego_heading, lane_width_m=w)
         m_l_sv = near_boundary(sv_y_local, veh.heading, lane_width_m=w) & ~veh.virtual
+        if self.turning_in_is_near:
+            m_l_sv |= crossing_toward(sv_y_local, veh.heading, ego_y_local[:, None], lane_width_m=w) & ~veh.virtual
         _, r_star = rule_mapping(r_sv, m_l_ego, m_l_sv, dx, eps_s_m=self.eps_s_m, grouped=self.grouped)
         if self.straddle_grouping:
             r_star = straddle_grouping(r_star, m_l_ego)

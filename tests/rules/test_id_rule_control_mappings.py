@@ -7,6 +7,7 @@ import torch
 from highway_srl.rules import (
     default_virtual_vehicles,
     id_mapping,
+    crossing_toward,
     near_boundary,
     rule_mapping,
     target_lane_local,
@@ -110,6 +111,19 @@ def test_eq31_heading_rotates_the_corners_towards_the_boundary():
     # y = 0, φ = 0.2: front-right corner at 2.5 sin 0.2 + 1 cos 0.2 = 1.4768, 0.273 from the line
     assert near_boundary(X(0.0), X(0.2)).tolist() == [True]
     assert abs(2.5 * math.sin(0.2) + math.cos(0.2) - 1.4768) < 1e-4
+
+
+def test_eq31_misses_a_car_turning_in_steeply_which_crossing_toward_flags():
+    # the traced two-lane crash (docs/paper-notes.md, profiles): centre y = 0.62, heading 0.541 rad. Corners
+    # y ± 2.5 sin φ ± 1 cos φ: front-left 0.62 + 1.287 + 0.857 = 2.764 (1.01 over the line at 1.75),
+    # front-right 1.050 (0.70 short), rear corners 0.19 and -1.52: no δ_k < 0.5, centre 1.13 away
+    y, h = X(0.62, 0.62, 0.62, 0.62), X(0.541, -0.541, 0.0, 0.541)
+    assert near_boundary(y, h).tolist() == [False, False, True, False]
+    ego_y = X(3.5, 3.5, 3.5, -3.5)  # ego in the other lane, except the last (behind the SV's back)
+    # heading toward the ego and crossing: flagged; turning away (its nose crosses nothing: corners <= 1.05),
+    # straight (no corner over the line) and heading away from the ego's side: not
+    assert crossing_toward(y, h, ego_y).tolist() == [True, False, False, False]
+    assert abs(0.62 + 2.5 * math.sin(0.541) + math.cos(0.541) - 2.764) < 1e-3
 
 
 # ----------------------------------------------------------------- rule mapping, Eq. 32

@@ -1,7 +1,7 @@
 """Control profiles of the SafetyLayer (docs/paper-notes.md, "Profiles: paper vs safe").
 
 `paper` = Eqs. 31-35 as printed plus the hold of a lane change under way; `safe` = today's behaviour with
-our five additions. One crafted situation per addition where the two profiles differ exactly as documented,
+our six additions. One crafted situation per addition where the two profiles differ exactly as documented,
 and a golden test of Eqs. 31-35 under `paper`.
 """
 
@@ -24,10 +24,10 @@ def test_safe_is_the_default_profile_and_equals_the_previous_defaults():
     layer = SafetyLayer(make_road("two-lane"))
     assert layer.profile == "safe"
     assert (layer.abort_unsafe_change, layer.brake_while_changing, layer.finish_in_window, layer.straddle_grouping,
-            layer.standstill_gap_m) == (True, True, True, True, 1.0)
+            layer.standstill_gap_m, layer.turning_in_is_near) == (True, True, True, True, 1.0, True)
     paper = SafetyLayer(make_road("two-lane"), profile="paper")
     assert (paper.abort_unsafe_change, paper.brake_while_changing, paper.finish_in_window, paper.straddle_grouping,
-            paper.standstill_gap_m) == (False, False, False, False, 0.0)
+            paper.standstill_gap_m, paper.turning_in_is_near) == (False, False, False, False, 0.0, False)
     assert paper.hold_lane_change and layer.hold_lane_change  # both hold a change under way
     assert set(PROFILES) == {"paper", "safe"}
 
@@ -111,6 +111,19 @@ def test_standstill_margin_holds_a_standing_ego_half_a_metre_behind_a_standing_c
     for name, layer in layers(road).items():
         p = layer.observe(hand_world(road, scene)).primary
         assert p.r_sv[0, 0].item() is (name == "paper"), name
+        assert p.mask[0, FASTER].item() is (name == "paper"), name
+
+
+def test_an_sv_turning_in_steeply_ahead_counts_as_near_the_boundary_only_under_safe(hand_world):
+    """turning_in_is_near: the traced mild-adversary crash. Ego in lane 1 at 8 m/s; a forced SV crawls at
+    1.5 m/s 7.5 m ahead (2.5 m bumper gap, R2 = 0) in lane 0, centre 0.62 m off its lane centre, turning in
+    at 0.541 rad (its nose over the line, Eq. 31 flags no corner). Nothing ahead in the ego's lane (R1 = 1):
+    paper allows Faster (R*1 = R1), safe groups the SV (R*1 = R'1 ∧ R'2 = 0)."""
+    road = make_road("two-lane")
+    scene = [{"ego": (0.0, W, 8.0, 0.0), "svs": [(7.5, 0.62, 1.5, 0.541)]}]
+    for name, layer in layers(road).items():
+        p = layer.observe(hand_world(road, scene)).primary
+        assert p.r_sv[0, :2].tolist() == [True, False], name
         assert p.mask[0, FASTER].item() is (name == "paper"), name
 
 

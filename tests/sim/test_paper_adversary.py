@@ -131,10 +131,11 @@ def rule_based_collisions(adversary: str, profile: str = "paper") -> tuple[int, 
 def test_paper_adversary_makes_the_rule_based_driver_collide_where_the_mild_one_does_not():
     """The issue's check: 100 adversarial two-lane level-C episodes (evaluation seeds 10^9...) of the
     rule-based driver under its default (paper) profile. Paper adversary: C_r < 100 % (4 collisions when
-    written); mild: C_r 100 %. (Under the safe profile the mild adversary's 100 episodes hold one collision:
-    a forced SV crawling at 1.5 m/s from 15 m ahead turns in at up to 0.58 rad and its corner reaches the
-    ego while its centre is still in its own lane, where no lane-based ID mapping sees it; docs/paper-notes.md.)"""
+    written); mild: C_r 100 %, under the safe profile too since its turning_in_is_near (before it, one
+    collision: a forced SV crawling at 1.5 m/s from 15 m ahead turned in at up to 0.58 rad and its nose
+    reached the ego while Eq. 31 flagged none of its corners; docs/paper-notes.md)."""
     paper, paper_cut = rule_based_collisions("paper")
     mild, mild_cut = rule_based_collisions("mild")
     assert paper > 0 and mild == 0
     assert paper_cut > 0 and mild_cut > 0
+    assert rule_based_collisions("mild", "safe")[0] == 0  # the crash that turning_in_is_near was added for
