@@ -251,15 +251,8 @@ def near_boundary(
     return (delta_min < eps_p_m) | ((y_local - y_lane).abs() < eps_d_m)
 
 
-def crossing_toward(
-    y_local: torch.Tensor,
-    heading: torch.Tensor,
-    ego_y_local: torch.Tensor,
-    *,
-    lane_width_m: float = LANE_WIDTH_M,
-    length_m: float = VEHICLE_LENGTH_M,
-    width_m: float = VEHICLE_WIDTH_M,
-) -> torch.Tensor:
+def crossing_toward(y_local: torch.Tensor, heading: torch.Tensor, ego_y_local: torch.Tensor,
+                    lane_width_m: float = LANE_WIDTH_M) -> torch.Tensor:
     """(...) bool: a car whose body crosses the pair's lane line (corners on both sides of y_local = w_L/2)
     while it heads toward the ego's side of the line. The safe profile ORs it into m*_L,SV (Eq. 31): at a
     large heading Eq. 31 misses such a car (a 5 m car turning in at 0.54 rad with its centre 1.1 m short of
@@ -267,7 +260,7 @@ def crossing_toward(
     leader leaving the ego's lane must not block the ego's own change. y_local, heading: (B, K) or (...);
     ego_y_local broadcasts against them."""
     x0 = torch.zeros_like(y_local)
-    _, cy = corner_points(x0, y_local, heading, length_m, width_m)
+    _, cy = corner_points(x0, y_local, heading, VEHICLE_LENGTH_M, VEHICLE_WIDTH_M)
     y_lane = 0.5 * lane_width_m
     crosses = (cy.min(dim=-1).values < y_lane) & (cy.max(dim=-1).values > y_lane)
     return crosses & ((ego_y_local - y_local) * torch.sin(heading) > 0)
