@@ -61,9 +61,12 @@ def _cmd_bench(args) -> int:
         from highway_srl.experiments.train import bench_train
 
         result = bench_train(method=args.method, scenario=args.scenario, traffic=args.traffic, envs=args.envs,
-                             steps=args.steps, device=args.device, seeds=args.seeds)
+                             steps=args.steps, device=args.device, seeds=args.seeds, compile=args.compile,
+                             static=args.static)
+        rates = ", ".join(f"{name} {form['env_steps_per_s']:,.0f} ({form['env_steps_per_s_with_compile']:,.0f} with "
+                          f"{form['warmup_s']:.0f} s warm-up)" for name, form in result["forms"].items())
         line = (f"train {result['method']} on {result['scenario']} ({result['envs']} envs, {result['seeds']} seed(s), "
-                f"{result['device']}): {result['env_steps_per_s']:,.0f} env-steps/s, "
+                f"{result['device']}): env-steps/s {rates}; "
                 f"projected {result['projected_paper_run_min']:.1f} min for 5e5 steps")
     print(json.dumps(result) if args.json else line)
     return 0
@@ -101,7 +104,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default="cpu")
     # off by default: compiling takes minutes and pays only over long runs (docs/benchmarks.md)
     p.add_argument("--compile", action=argparse.BooleanOptionalAction, default=False,
-                   help="bench sim: the compiled static-shape step (CUDA graphs on CUDA; needs a C++ compiler on CPU)")
+                   help="the compiled static-shape step (CUDA graphs on CUDA; needs a C++ compiler on CPU); bench "
+                   "train then reports eager and compiled side by side")
+    p.add_argument("--static", action=argparse.BooleanOptionalAction, default=None,
+                   help="bench train: the eager step's form, static (masked, sync-free) or compact (default: "
+                   "static on CUDA, compact on the CPU)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_bench)
 

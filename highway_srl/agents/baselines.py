@@ -257,10 +257,15 @@ class LMRL(SingleDQN):
         cost = torch.where(events.collision, torch.full_like(reward, COLLISION_COST), violated)
         return reward, cost
 
-    def update(self, learner: DQNLearner, members: torch.Tensor, batch: dict) -> UpdateStats:
+    def trained_members(self, device) -> torch.Tensor:
+        return torch.arange(self.seeds, device=device) * self.members_per_seed  # the reward networks
+
+    def update(self, learner: DQNLearner, members: torch.Tensor, batch: dict,
+               mask: torch.Tensor | None = None) -> UpdateStats:
         """members (K,): reward networks (even indices) whose buffers gave batch; their cost networks
         (members + 1) train on the same transitions. The learner's own target is y = r + γ(1 - done) max Q;
         passing the policy-evaluation targets as rewards with done = True makes it exactly y.
+        mask (K,) bool: only those reward networks and their cost networks step (the static form).
         Returns the reward networks' stats (the logs' Q values are returns, not costs)."""
         k = members.shape[0]
         both = torch.cat([members, members + 1]).to(learner.device)
@@ -274,10 +279,13 @@ class LMRL(SingleDQN):
             bootstrap = learner.config.gamma * (~batch["done"]).to(obs.dtype)
             y_r = batch["reward"] + bootstrap * q_tg[:k].gather(2, a_next).squeeze(2)
             y_c = batch["cost"] + bootstrap * q_tg[k:].gather(2, a_next).squeeze(2)
-        return learner.update(both, {
+        targets = {
             "obs": torch.cat([obs, obs]), "action": torch.cat([batch["action"]] * 2), "reward": torch.cat([y_r, y_c]),
             "next_obs": torch.cat([nxt, nxt]), "done": torch.ones(2 * k, obs.shape[1], dtype=torch.bool, device=obs.device),
-        }).head(k)
+        }
+        if mask is None:
+            return learner.update(both, targets).head(k)
+        return learner.update_masked(both, targets, torch.cat([mask, mask])).head(k)
 
     def after_step(self, trainer, events, cost, done) -> None:
         """Dual ascent: once per vector step in which episodes of a seed ended, λ_seed moves by
@@ -336,8 +344,11 @@ class RuleBased(_Options, Method):
     def store(self, replay, d, obs, reward, next_obs, done, cost, share=False):
         pass
 
-    def members_to_update(self, acted, sizes, batch_size):
-        return acted.new_zeros(0)
+    def updatable(self, acted_count, sizes, batch_size):
+        return torch.zeros_like(sizes, dtype=torch.bool)
+
+    def trained_members(self, device):
+        return torch.zeros(0, dtype=torch.long, device=device)
 
 
 class Manual(Method):

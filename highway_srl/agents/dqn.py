@@ -64,22 +64,59 @@ class UpdateLog:
 
     def __init__(self, device: torch.device | str):
         self.sums = torch.zeros(len(self.FIELDS), device=device)
-        self.count = 0  # member updates summed (a host number: the members' count is known on the host)
+        self.count = torch.zeros((), dtype=torch.long, device=device)  # member updates summed (on the device)
 
-    def add(self, stats: UpdateStats | None) -> None:
+    def add(self, stats: UpdateStats | None, mask: torch.Tensor | None = None) -> None:
+        """mask (K,) bool: only these members were updated (the masked form); None: all of them."""
         if stats is None:
             return
-        self.sums += torch.stack([stats.loss.sum(), stats.q_mean.sum(), stats.td_error.sum()])
-        self.count += stats.loss.shape[0]
+        values = torch.stack([stats.loss, stats.q_mean, stats.td_error])  # (3, K)
+        if mask is None:
+            self.sums += values.sum(1)
+            self.count += stats.loss.shape[0]
+        else:
+            self.sums += torch.where(mask, values, 0.0).sum(1)
+            self.count += mask.long().sum()
 
     def read(self) -> dict[str, float]:
         """Mean loss, Q and |TD error| per member update since the last read; {} if there was none."""
-        if self.count == 0:
+        count = int(self.count)
+        if count == 0:
             return {}
-        means = (self.sums / self.count).tolist()
+        means = (self.sums / count).tolist()
         self.sums.zero_()
-        self.count = 0
+        self.count.zero_()
         return dict(zip(self.FIELDS, means))
+
+
+def td_loss_and_grad(net: MLPEnsemble, theta: torch.Tensor, obs: torch.Tensor, action: torch.Tensor,
+                     y: torch.Tensor, huber: bool) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The DQN loss of K members and its gradient, written out (no autograd: one graph for torch.compile).
+
+    theta (K, P) the members' flat weights; obs (K, N, in); action (K, N) long; y (K, N) the TD targets.
+    Returns q_sa (K, N), the per-member mean loss (K,) and d(sum of the per-member losses)/d theta (K, P):
+    the same gradient autograd gives (tests/agents/test_dqn.py), through the layers of ensemble_forward."""
+    w1, b1, w2, b2, w3, b3 = net.unflatten(theta)
+    h1 = torch.relu(torch.baddbmm(b1, obs, w1))
+    h2 = torch.relu(torch.baddbmm(b2, h1, w2))
+    q = torch.baddbmm(b3, h2, w3)
+    q_sa = q.gather(2, action.unsqueeze(2)).squeeze(2)
+    diff = q_sa - y
+    n = diff.shape[1]
+    if huber:
+        per_member = F.smooth_l1_loss(q_sa, y, reduction="none").mean(1)
+        d_q_sa = diff.clamp(-1.0, 1.0) / n
+    else:
+        per_member = diff.square().mean(1)
+        d_q_sa = diff * (2.0 / n)
+    d_q = torch.zeros_like(q).scatter_(2, action.unsqueeze(2), d_q_sa.unsqueeze(2))  # (K, N, out)
+    d_h2 = torch.bmm(d_q, w3.transpose(1, 2)) * (h2 > 0)
+    d_h1 = torch.bmm(d_h2, w2.transpose(1, 2)) * (h1 > 0)
+    grads = (torch.bmm(obs.transpose(1, 2), d_h1), d_h1.sum(1, keepdim=True),
+             torch.bmm(h1.transpose(1, 2), d_h2), d_h2.sum(1, keepdim=True),
+             torch.bmm(h2.transpose(1, 2), d_q), d_q.sum(1, keepdim=True))
+    grad = torch.cat([g.reshape(g.shape[0], -1) for g in grads], 1)
+    return q_sa, per_member, grad
 
 
 class DQNLearner:
@@ -178,27 +215,60 @@ class DQNLearner:
         q_sa = q_sa.detach()
         return UpdateStats(per_member.detach(), q_sa.mean(1), (y - q_sa).abs().mean(1))
 
-    def _adam_step(self, idx: torch.Tensor, theta: torch.Tensor, grad: torch.Tensor) -> torch.Tensor:
+    @torch.no_grad()
+    def update_masked(self, members: torch.Tensor, batch: dict[str, torch.Tensor], mask: torch.Tensor) -> UpdateStats:
+        """The static form of `update`: one gradient step for each of `members` (K,) long (distinct) where
+        mask (K,) bool is True; the others are computed alongside but keep their weights, target, Adam
+        moments and counters. No host read and no shape that depends on the data, so that a fixed set of
+        members (all of them) updates as one graph (torch.compile, CUDA graphs); the gradient is written
+        out (td_loss_and_grad). The same step as `update` for the masked-in members, to float rounding."""
+        cfg = self.config
+        idx = members.to(self.device)
+        obs, next_obs, action, reward, done = (batch[k] for k in ("obs", "next_obs", "action", "reward", "done"))
+        old_target = self.target.gather(idx)  # (K, P)
+        q_next = ensemble_forward(self.target.unflatten(old_target), next_obs)
+        q_next = q_next.masked_fill(~self.action_mask[idx].unsqueeze(1), float("-inf")).amax(-1)
+        y = reward + cfg.gamma * (~done).to(q_next.dtype) * q_next
+        theta = self.online.flat.index_select(0, idx)
+        q_sa, per_member, grad = td_loss_and_grad(self.online, theta, obs, action, y, cfg.huber)
+        new_theta = self._adam_step(idx, theta, grad, mask)
+        self.online.flat.index_copy_(0, idx, new_theta)
+        count = self.target_update_count[idx] + mask.long()
+        sync = mask & (count > cfg.target_update_interval)
+        self.target_update_count.index_copy_(0, idx, torch.where(sync, torch.zeros_like(count), count))
+        self.target.flat.index_copy_(0, idx, torch.where(sync.unsqueeze(1), new_theta, old_target))
+        return UpdateStats(per_member, q_sa.mean(1), (y - q_sa).abs().mean(1))
+
+    def _adam_step(self, idx: torch.Tensor, theta: torch.Tensor, grad: torch.Tensor,
+                   mask: torch.Tensor | None = None) -> torch.Tensor:
         """Adam with per-member gradient-norm clipping on gathered rows theta, grad (K, P).
 
-        Updates the moments and step counts of members idx and returns their new weights (K, P).
+        Updates the moments and step counts of members idx and returns their new weights (K, P);
+        mask (K,) bool: only those members step, the others keep their moments, count and weights.
         """
         cfg = self.config
         beta1, beta2 = cfg.adam_betas
         if cfg.grad_clip_norm > 0:
             norm = grad.square().sum(1, keepdim=True).sqrt_()
             grad = grad * (cfg.grad_clip_norm / (norm + 1e-6)).clamp_(max=1.0)
-        step = self.adam_step[idx] + 1
-        self.adam_step.index_copy_(0, idx, step)
+        old_step = self.adam_step[idx]
+        step = old_step + 1
+        self.adam_step.index_copy_(0, idx, step if mask is None else torch.where(mask, step, old_step))
         step_size = (cfg.lr / (1 - beta1**step)).unsqueeze(1)
         bias2_sqrt = (1 - beta2**step).sqrt_().unsqueeze(1)
         m = self.exp_avg.index_select(0, idx).lerp_(grad, 1 - beta1)
         v = self.exp_avg_sq.index_select(0, idx).mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
-        self.exp_avg.index_copy_(0, idx, m)
-        self.exp_avg_sq.index_copy_(0, idx, v)
+        if mask is None:
+            self.exp_avg.index_copy_(0, idx, m)
+            self.exp_avg_sq.index_copy_(0, idx, v)
+        else:
+            rows = mask.unsqueeze(1)
+            self.exp_avg.index_copy_(0, idx, torch.where(rows, m, self.exp_avg.index_select(0, idx)))
+            self.exp_avg_sq.index_copy_(0, idx, torch.where(rows, v, self.exp_avg_sq.index_select(0, idx)))
         # theta - lr / (1 - beta1^t) * m / (sqrt(v / (1 - beta2^t)) + eps), as torch.optim.Adam
         denom = v.sqrt().div_(bias2_sqrt).add_(cfg.adam_eps).div_(step_size)
-        return theta.addcdiv(m, denom, value=-1.0)
+        new = theta.addcdiv(m, denom, value=-1.0)
+        return new if mask is None else torch.where(mask.unsqueeze(1), new, theta)
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         """Flat dict of tensors (safetensors-friendly): weights, Adam moments, counters."""

@@ -66,13 +66,22 @@ class Method:
     def store(self, replay: ExpertReplay, d: Decision, obs, reward, next_obs, done, cost, share: bool = False):
         replay.add(d.member, obs, d.action, reward, next_obs, done, cost)
 
-    def members_to_update(self, acted: torch.Tensor, sizes: torch.Tensor, batch_size: int) -> torch.Tensor:
-        """Algorithm 1 trains the member that acted; only once its buffer holds a full batch."""
-        members = torch.unique(acted[acted >= 0])
-        return members[sizes[members] >= batch_size]
+    def updatable(self, acted_count: torch.Tensor, sizes: torch.Tensor, batch_size: int) -> torch.Tensor:
+        """(M,) bool, the members to train after a vector step in which member m acted in acted_count[m]
+        (M,) envs: Algorithm 1 trains the member that acted, once its buffer (sizes (M,)) holds a batch."""
+        return (acted_count > 0) & (sizes >= batch_size)
 
-    def update(self, learner: DQNLearner, members: torch.Tensor, batch: dict) -> UpdateStats:
-        return learner.update(members, batch)
+    def trained_members(self, device) -> torch.Tensor:
+        """(K,) long: every member that can ever be chosen by `updatable` (the static form updates these
+        under a mask)."""
+        return torch.arange(self.num_members, device=device)
+
+    def update(self, learner: DQNLearner, members: torch.Tensor, batch: dict,
+               mask: torch.Tensor | None = None) -> UpdateStats:
+        """One gradient step of each of members (K,) on its batch; mask (K,) bool: only those (static form)."""
+        if mask is None:
+            return learner.update(members, batch)
+        return learner.update_masked(members, batch, mask)
 
     def after_step(self, trainer, events, cost, done) -> None:
         pass

@@ -108,6 +108,11 @@ class ExpertReplay:
         """
         members = members.to(self.device)
         u = torch.rand(members.shape[0], batch_size, generator=generator, device=self.device)
+        return self.sample_at(members, u)
+
+    def sample_at(self, members: torch.Tensor, u: torch.Tensor) -> dict[str, torch.Tensor]:
+        """`sample` at given uniform draws u (K, batch) in [0, 1): row floor(u x size) of each member's
+        filled rows. No host read (drawing u outside lets a compiled graph take it as an input)."""
         size = self.size[members].unsqueeze(1)
         slot = (u * size).long().clamp_(max=self.capacity - 1)
         row = members.unsqueeze(1) * self.capacity + slot

@@ -2,8 +2,9 @@
 
 One vector step: observe (rules) -> act (method) -> control mapping -> world step -> observe the next
 state -> reward -> store in the acting member's buffer -> episode bookkeeping and resets -> DQN updates
-of the members that acted. Everything stays on the trainer's device; the host reads back only the few
-numbers needed for finished episodes and for choosing which members to update.
+of the members that acted. Everything stays on the trainer's device. The compact form (the CPU's eager
+default) reads back whether an env is done and which members to update; the static form (CUDA, compiled)
+reads nothing but the finished episodes, every few vector steps (Trainer).
 """
 
 from __future__ import annotations
@@ -14,16 +15,16 @@ from dataclasses import asdict, dataclass, field
 import torch
 
 from highway_srl.agents.checkpoint import policy_tensors, split_policy_tensors
-from highway_srl.agents.dqn import DQNConfig, DQNLearner, UpdateLog
+from highway_srl.agents.dqn import DQNConfig, DQNLearner, UpdateLog, UpdateStats
 from highway_srl.agents.methods import DEFAULT_PROFILE, Method
 from highway_srl.agents.registry import make_method
 from highway_srl.agents.replay import ExpertReplay
 from highway_srl.agents.rollout import policy_step
 from highway_srl.constants import OBS_DIM
 from highway_srl.rules import control_profile
-from highway_srl.rules.episode import EpisodeStats
+from highway_srl.rules.episode import RESULT_FIELDS, EpisodeStats, FinishedEpisodes, episode_row
 from highway_srl.sim import World
-from highway_srl.sim.world import ADVERSARIES
+from highway_srl.sim.world import ADVERSARIES, compile_options, uses_cuda_graphs
 from highway_srl.sim.state import WorldState
 
 
@@ -44,6 +45,12 @@ class TrainConfig:
     # configs written before replay_ratio: gradient steps per acting member per vector step (replay_ratio None)
     updates_per_step: int | None = None
     share_transitions: bool = False  # store each transition in every expert whose set holds the action
+    # the static-shape vector step (Trainer.static): None = where it pays, on CUDA or when compiled; the CPU's
+    # eager default is the compact form (faster there: docs/benchmarks.md). The two draw different samples.
+    static: bool | None = None
+    # torch.compile the static step's parts (Trainer.compiled): False, True (CUDA graphs on CUDA), or a
+    # torch.compile mode or backend name (tests: "aot_eager")
+    compile: bool | str = False
     dqn: DQNConfig = field(default_factory=DQNConfig)
     options: dict = field(default_factory=dict)  # method-specific switches (ablations)
 
@@ -76,8 +83,9 @@ class TrainConfig:
 
 
 # What a config.json written before these keys existed ran under: the rule layer's profile was today's
-# "safe" one and the adversary today's "mild" one (replay_ratio: see from_dict).
-LEGACY = {"profile": "safe", "adversary": "mild"}
+# "safe" one and the adversary today's "mild" one, its vector step the compact eager one (replay_ratio: see
+# from_dict).
+LEGACY = {"profile": "safe", "adversary": "mild", "static": False, "compile": False}
 
 
 def check_config(cfg: TrainConfig) -> None:
@@ -117,7 +125,20 @@ class Episode:
 
 
 class Trainer:
-    def __init__(self, config: TrainConfig):
+    """One vector step at a time (step), in one of two forms with the same semantics:
+
+    compact (the CPU's eager default): resets, episode rows and the members to update are chosen by what
+    the step produced (host reads: whether any env is done, which members are owed updates, how many rounds);
+    static (config.static; on CUDA and whenever compiled): every reset is a masked select of freshly
+    spawned state, and every member the method can train takes a fixed number of update rounds under a mask
+    (ceil(replay_ratio x envs): the most one member can be owed), each on its own batch. Nothing in the
+    static step reads the device, apart from the multi-lane model choice and LM-RL's multiplier.
+
+    In both, finished episodes wait on the device (FinishedEpisodes) and are read every drain_every vector
+    steps (step returns them then) or by drain(); state_dict needs them drained (train drains before each
+    checkpoint, so checkpoints and resumes stay exact)."""
+
+    def __init__(self, config: TrainConfig, drain_every: int = 1):
         cfg = config
         check_config(cfg)
         self.config = cfg
@@ -125,8 +146,11 @@ class Trainer:
         self.batch = cfg.envs * self.num_seeds
         env_seeds = [s * 1_000_003 + e for s in cfg.seeds for e in range(cfg.envs)]
         self.world = World(cfg.scenario, cfg.traffic, cfg.adversarial, self.batch, cfg.device, env_seeds,
-                           adversary=cfg.adversary)
+                           adversary=cfg.adversary, compile=cfg.compile)
         self.device = self.world.device
+        self.static = cfg.static if cfg.static is not None else bool(cfg.compile) or self.device.type == "cuda"
+        if cfg.compile and not self.static:
+            raise ValueError("compile needs the static step (static=False was set)")
         self.method: Method = make_method(cfg.method, cfg.scenario, self.num_seeds, cfg.options, cfg.profile)
         self.layer = self.method.make_layer(self.world.road)
         self.learner = DQNLearner(
@@ -141,9 +165,19 @@ class Trainer:
         self.usage = torch.zeros(self.method.num_members + 1, dtype=torch.long, device=self.device)
         self.update_log = UpdateLog(self.device)  # loss, Q, TD error since the last log (not checkpointed)
         # replay_ratio: updates owed to each member, carried over while below one (fractional ratios)
-        self.update_credit = torch.zeros(self.method.num_members, dtype=torch.float64)
+        self.update_credit = torch.zeros(self.method.num_members, dtype=torch.float64, device=self.device)
         # the deployment reward R_r is tracked for every method alike
         self.stats = EpisodeStats(cfg.scenario, self.batch, self.device, self.world.max_steps)
+        self.drain_every = max(1, int(drain_every))
+        self.finished = FinishedEpisodes(self.batch * self.drain_every, len(RESULT_FIELDS), self.device)
+        # the static form's fixed update: these members, this many rounds (a member acts in at most `envs`
+        # envs of a vector step and carries less than one update over, so it is never owed more)
+        self.trained = self.method.trained_members(self.device)
+        per_step = cfg.updates_per_step if cfg.replay_ratio is None else math.ceil(cfg.replay_ratio * cfg.envs)
+        self.static_rounds = per_step if self.trained.numel() else 0
+        self.update_round = self.eager_update_round
+        if cfg.compile:
+            self.update_round = compile_update_round(self, cfg.compile)
         self.current = self.layer.observe(self.world)
 
     @property
@@ -153,22 +187,26 @@ class Trainer:
 
     # ------------------------------------------------------------------ one vector step
     def step(self) -> list[Episode]:
+        """One vector step; returns the episodes drained now (every drain_every steps; [] in between)."""
         cfg, world, layer = self.config, self.world, self.layer
         cur = self.current
         eps = cfg.dqn.epsilon(self.env_steps)
         explore = torch.rand(self.batch, generator=self.gen, device=self.device) < eps
         t = policy_step(self.method, self.learner, world, layer, cur, explore, self.gen, self.stats, train=True)
         decision, events, nxt = t.decision, t.events, t.view
-        self.usage += torch.bincount(decision.member + 1, minlength=self.usage.shape[0])
+        self.usage.index_add_(0, decision.member + 1, torch.ones_like(decision.member))
         model = cur.select(decision.use_second)
         self.method.store(self.replay, decision, model.obs, t.reward, nxt.primary.obs, events.terminated, t.cost,
                           share=cfg.share_transitions)
         done = events.terminated | events.truncated
         self.vector_steps += 1
-        finished: list[Episode] = []
-        if bool(done.any()):
-            finished = [Episode(cfg.seeds[r.env // cfg.envs], self.env_steps, r.ret, r.length, r.collision,
-                                r.avg_speed, r.success, r.deploy_reward, r.rm_return) for r in self.stats.finish(done)]
+        self.finished.record(done, self.stats.rows(), self.vector_steps)
+        self.stats.restart(done)
+        if self.static:
+            world.reset_where(done)
+            layer.reset(done)
+            nxt = layer.observe(world)
+        elif bool(done.any()):
             world.reset(done)
             layer.reset(done)
             nxt = layer.observe(world)
@@ -177,11 +215,19 @@ class Trainer:
         if self.env_steps >= cfg.dqn.learning_starts:
             self._update(decision.member)
         self.method.after_step(self, events, t.cost, done)
-        return finished
+        return self.drain() if self.vector_steps % self.drain_every == 0 else []
 
-    def update_counts(self, acted: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(members (K,) long, updates (K,) long on the host): how many gradient steps each member takes
-        after a vector step in which acted (B,) names the member that acted in each env (-1: none).
+    def drain(self) -> list[Episode]:
+        """The finished episodes not yet read, in the order they ended (one host read)."""
+        cfg = self.config
+        values, tags = self.finished.drain()
+        return [Episode(cfg.seeds[r.env // cfg.envs], tag * cfg.envs, r.ret, r.length, r.collision, r.avg_speed,
+                        r.success, r.deploy_reward, r.rm_return)
+                for r, tag in zip(map(episode_row, values), tags)]
+
+    def owed_updates(self, acted: torch.Tensor) -> torch.Tensor:
+        """(M,) long on the device: the gradient steps each member takes after a vector step in which acted
+        (B,) names the member that acted in each env (-1: none). No host read; credits carry on the device.
 
         Algorithm 1 takes one gradient step on a batch of n_b from the acting expert's buffer after every
         environment step. With B envs a vector step is B environment steps, so member m gets
@@ -191,28 +237,55 @@ class Trainer:
         takes none yet and owes nothing. Fractions carry over in update_credit. Legacy configs
         (updates_per_step): that many steps for every member that acted, whatever the count."""
         cfg = self.config
-        members = self.method.members_to_update(acted, self.replay.size, cfg.dqn.batch_size).cpu()
+        count = torch.zeros(self.method.num_members, dtype=torch.long, device=self.device)
+        count.index_add_(0, acted.clamp(min=0), (acted >= 0).long())
+        eligible = self.method.updatable(count, self.replay.size, cfg.dqn.batch_size)
         if cfg.replay_ratio is None:
-            return members, torch.full_like(members, cfg.updates_per_step)
-        count = torch.bincount(acted[acted >= 0], minlength=self.method.num_members).cpu()
-        owed = self.update_credit[members] + cfg.replay_ratio * count[members].double()
+            return torch.where(eligible, cfg.updates_per_step, 0)
+        owed = self.update_credit + cfg.replay_ratio * count.double()
         updates = owed.floor()
-        self.update_credit[members] = owed - updates
-        return members, updates.long()
+        self.update_credit = torch.where(eligible, owed - updates, self.update_credit)
+        return torch.where(eligible, updates, 0.0).long()
+
+    def update_counts(self, acted: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """owed_updates as (members (K,), updates (K,)) of the members owed at least one step (host read)."""
+        updates = self.owed_updates(acted)
+        members = updates.nonzero().squeeze(1)
+        return members, updates[members]
 
     def _update(self, acted: torch.Tensor) -> None:
         cfg = self.config
+        if self.static:
+            rounds, members = self.static_rounds, self.trained
+            if rounds == 0:
+                return
+            need = self.owed_updates(acted)[members]
+            # all rounds' draws at once, one per (round, member, sample): every member samples every round
+            u = torch.rand(rounds, members.shape[0], cfg.dqn.batch_size, generator=self.gen, device=self.device)
+            for i in range(rounds):  # round i: every member owed more than i steps, one batch each
+                mask = need > i
+                self.update_log.add(UpdateStats(*self.update_round(members, u[i], mask)), mask)
+            return
         members, updates = self.update_counts(acted)
         rounds = int(updates.max()) if updates.numel() else 0
         for i in range(rounds):  # round i: every member owed more than i steps, one batch each
-            take = members[updates > i].to(self.device)
+            take = members[updates > i]
             batch = self.replay.sample(take, cfg.dqn.batch_size, self.gen)
             self.update_log.add(self.method.update(self.learner, take, batch))
+
+    def eager_update_round(self, members: torch.Tensor, u: torch.Tensor, mask: torch.Tensor) -> tuple:
+        """One static update round: members (K,) each sample their buffer at u (K, batch) and step where
+        mask (K,) is True. Returns the UpdateStats fields (a tuple: what a compiled graph returns)."""
+        stats = self.method.update(self.learner, members, self.replay.sample_at(members, u), mask)
+        return stats.loss, stats.q_mean, stats.td_error
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict[str, torch.Tensor]:
         """Everything a resumed run needs to continue exactly: weights, targets, Adam moments, counters,
-        replay buffers, the worlds' state, the rule layer's target lanes, episode accumulators and RNG."""
+        replay buffers, the worlds' state, the rule layer's target lanes, episode accumulators and RNG.
+        Finished episodes not yet drained are not part of it: drain() first (a RuntimeError otherwise)."""
+        if int(self.finished.count):
+            raise RuntimeError("finished episodes are waiting on the device: drain() before state_dict()")
         state = policy_tensors(self.learner, self.method)
         state.update(self.replay.state_dict())
         for name, value in vars(self.world.state).items():
@@ -240,6 +313,29 @@ class Trainer:
         self.vector_steps = int(state["counters.vector_steps"][0])
         self.usage = state["counters.usage"].to(self.device).clone()
         if "counters.update_credit" in state:
-            self.update_credit = state["counters.update_credit"].cpu().double().clone()
+            self.update_credit = state["counters.update_credit"].to(self.device, torch.float64).clone()
         self.method.load_state_dict(method)
         self.current = self.layer.observe(self.world)
+
+
+def compile_update_round(trainer: Trainer, how: bool | str):
+    """trainer.eager_update_round as one torch.compile graph (how: sim.world.compile_options).
+
+    The round mutates the learner's state in place; on CUDA those tensors are marked static, so that CUDA
+    graphs replay onto them instead of skipping the graph. Its outputs (the round's stats) are consumed
+    before the next round starts, which each call marks (a new CUDA-graph step)."""
+    opts = compile_options(how, trainer.device)
+    if trainer.device.type == "cuda":
+        learner = trainer.learner
+        for t in (learner.online.flat, learner.target.flat, learner.exp_avg, learner.exp_avg_sq, learner.adam_step,
+                  learner.target_update_count, *trainer.replay.storage.values()):
+            torch._dynamo.mark_static_address(t)
+    graph = torch.compile(trainer.eager_update_round, **opts)
+    if not uses_cuda_graphs(opts, trainer.device):
+        return graph
+
+    def replay(members: torch.Tensor, u: torch.Tensor, mask: torch.Tensor) -> tuple:
+        torch.compiler.cudagraph_mark_step_begin()
+        return graph(members, u, mask)
+
+    return replay

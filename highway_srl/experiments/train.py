@@ -257,8 +257,13 @@ def train_run(cfg: TrainConfig | None, out: str | Path, resume: bool = False, ch
         return _train_locked(cfg, out, resume, checkpoint_every, progress, code)
 
 
+# vector steps between two reads of the finished episodes (the progress bar and episodes.jsonl lag by up to
+# this many; checkpoints drain first, so a resume is exact)
+DRAIN_EVERY = 50
+
+
 def _train_locked(cfg: TrainConfig, out: Path, resume: bool, checkpoint_every: int, progress: bool, code: dict) -> dict:
-    trainer = Trainer(cfg)
+    trainer = Trainer(cfg, drain_every=DRAIN_EVERY)
     log = out / "episodes.jsonl"
     started = time.perf_counter()
     if resume and (out / "resume").exists():
@@ -277,17 +282,21 @@ def _train_locked(cfg: TrainConfig, out: Path, resume: bool, checkpoint_every: i
     try:
         while trainer.env_steps < cfg.steps:
             finished_eps = trainer.step()
+            at_end = trainer.env_steps >= cfg.steps
+            checkpoint = trainer.env_steps - last_ckpt >= checkpoint_every and not at_end
+            if at_end or checkpoint or trainer.env_steps - last_log >= LOG_EVERY:
+                finished_eps += trainer.drain()  # everything up to this step is in the log before it is written
             if finished_eps:
                 append_jsonl(log, [_episode_row(e) for e in finished_eps])
                 scalars.episodes(finished_eps)
             if bar is not None:  # tqdm redraws on its own clock (mininterval); no tensor is read here
                 bar.update(min(trainer.env_steps, cfg.steps) - bar.n)
-            if trainer.env_steps - last_log >= LOG_EVERY or trainer.env_steps >= cfg.steps:
+            if trainer.env_steps - last_log >= LOG_EVERY or at_end:
                 values = scalars.log(trainer)
                 if bar is not None:
                     bar.set_postfix(_postfix(values), refresh=False)
                 last_log = trainer.env_steps
-            if trainer.env_steps - last_ckpt >= checkpoint_every and trainer.env_steps < cfg.steps:
+            if checkpoint:
                 wall = prior_wall + time.perf_counter() - started
                 save_checkpoint(out / "resume", trainer.state_dict(), {**_meta(cfg, trainer, code), "wall_s": wall})
                 last_ckpt = trainer.env_steps
@@ -344,30 +353,54 @@ def _remove_resume(path: Path) -> None:
         path.rmdir()
 
 
-def bench_train(method: str, scenario: str, traffic: str, envs: int, steps: int, device: str, seeds: int = 1) -> dict:
-    """Env-steps/s of the full training loop (updates included, past learning_starts) without running to the end."""
-    from highway_srl.agents.dqn import DQNConfig
+def bench_train(method: str, scenario: str, traffic: str, envs: int, steps: int, device: str, seeds: int = 1,
+                compile: bool | str = False, static: bool | None = None) -> dict:
+    """Env-steps/s of the full training loop (updates included, at Algorithm 1's rate: replay_ratio 1, batch
+    256, from the first timed step) without running to the end. compile: also the compiled step (True, or a
+    torch.compile mode / backend), measured after the eager one: both are reported under "forms", and the
+    top-level figures are the compiled ones. static: the eager step's form (None: the device's default).
+    Each form's warm-up (buffers filled to a batch, then 5 steps) includes its compilation: warmup_s, and
+    env_steps_per_s_with_compile counts it."""
     from highway_srl.experiments.bench import machine
 
+    forms = {"eager": bench_train_form(method, scenario, traffic, envs, steps, device, seeds, False, static)}
+    if compile:
+        forms["compiled"] = bench_train_form(method, scenario, traffic, envs, steps, device, seeds, compile, True)
+    top = forms["compiled" if compile else "eager"]
+    rate = top["env_steps_per_s"]
+    return {"what": "train", "method": method, "scenario": scenario, "traffic": traffic, "envs": envs, "seeds": seeds,
+            "vector_steps": steps, "device": top["device"], "compile": compile, "static": top["static"],
+            "wall_s": top["wall_s"], "env_steps_per_s": rate,
+            "projected_paper_run_min": round(5e5 * seeds / rate / 60, 2) if rate > 0 else math.inf,
+            "replay_ratio": 1.0, "forms": forms, "machine": machine()}
+
+
+def bench_train_form(method: str, scenario: str, traffic: str, envs: int, steps: int, device: str, seeds: int,
+                     compile: bool | str, static: bool | None) -> dict:
+    """One form of bench_train: {device, static, compile, warmup_s, wall_s, env_steps_per_s,
+    env_steps_per_s_with_compile}."""
+    from highway_srl.agents.dqn import DQNConfig
+
+    start = time.perf_counter()
     cfg = TrainConfig(method=method, scenario=scenario, traffic=traffic, envs=envs, seeds=tuple(range(seeds)),
-                      device=device, steps=10**9, dqn=DQNConfig(learning_starts=0, batch_size=256))
-    trainer = Trainer(cfg)
+                      device=device, steps=10**9, replay_ratio=1.0, static=static, compile=compile,
+                      dqn=DQNConfig(learning_starts=0, batch_size=256))
+    trainer = Trainer(cfg, drain_every=DRAIN_EVERY)
+    sync = torch.cuda.synchronize if trainer.device.type == "cuda" else (lambda: None)
     # fill every acting member's buffer past one batch so updates run from the first timed step
     while int(trainer.replay.size.max()) < cfg.dqn.batch_size:
         trainer.step()
     for _ in range(5):
         trainer.step()
-    if trainer.device.type == "cuda":
-        torch.cuda.synchronize()
-    t0 = time.perf_counter()
+    sync()
+    warm = time.perf_counter()
+    warm_steps = trainer.vector_steps
     for _ in range(steps):
         trainer.step()
-    if trainer.device.type == "cuda":
-        torch.cuda.synchronize()
-    wall = time.perf_counter() - t0
-    rate = steps * envs * seeds / wall
-    return {"what": "train", "method": method, "scenario": scenario, "traffic": traffic, "envs": envs, "seeds": seeds,
-            "vector_steps": steps, "device": str(trainer.device), "wall_s": round(wall, 3),
-            "env_steps_per_s": round(rate, 1),
-            "projected_paper_run_min": round(5e5 * seeds / rate / 60, 2) if rate > 0 else math.inf,
-            "replay_ratio": cfg.replay_ratio, "machine": machine()}
+    sync()
+    end = time.perf_counter()
+    batch = envs * seeds
+    return {"device": str(trainer.device), "static": trainer.static, "compile": compile,
+            "warmup_s": round(warm - start, 3), "wall_s": round(end - warm, 3),
+            "env_steps_per_s": round(steps * batch / (end - warm), 1),
+            "env_steps_per_s_with_compile": round((warm_steps + steps) * batch / (end - start), 1)}

@@ -59,6 +59,12 @@ class EpisodeRow:
     rm_return: float  # the paper's RM training reward summed over the episode (every method alike)
 
 
+def episode_row(values: list) -> EpisodeRow:
+    """An EpisodeRow from one row of EpisodeStats.rows() as host numbers."""
+    v = values
+    return EpisodeRow(int(v[0]), v[1], int(v[2]), bool(v[3]), v[4], bool(v[5]), v[6], v[7])
+
+
 OPTIONAL_STATE = ("rm",)  # accumulators added after the first checkpoints were written
 
 
@@ -121,17 +127,24 @@ class EpisodeStats:
             "rm_return": self.rm,
         }
 
+    def rows(self) -> torch.Tensor:
+        """(B, len(RESULT_FIELDS)) in the sums' dtype: every env's row of results so far, env index first."""
+        r = self.results()
+        env = torch.arange(self.ret.shape[0], device=self.ret.device)
+        return torch.stack([env.to(self.ret.dtype)] + [r[k].to(self.ret.dtype) for k in RESULT_FIELDS[1:]], 1)
+
     def finish(self, done: torch.Tensor) -> list[EpisodeRow]:
         """Rows of the envs where done (B,) is True, read with one host read; their accumulators restart."""
         idx = done.nonzero().squeeze(1)
-        r = self.results()
-        env = torch.arange(done.shape[0], device=done.device)
-        rows = torch.stack([env.to(self.ret.dtype)] + [r[k].to(self.ret.dtype) for k in RESULT_FIELDS[1:]], 1)
-        out = [EpisodeRow(int(v[0]), v[1], int(v[2]), bool(v[3]), v[4], bool(v[5]), v[6], v[7])
-               for v in rows[idx].cpu().tolist()]
+        out = [episode_row(v) for v in self.rows()[idx].cpu().tolist()]
         for name in self.STATE:
             getattr(self, name)[idx] = 0
         return out
+
+    def restart(self, done: torch.Tensor) -> None:
+        """Zero the accumulators of the envs where done (B,) is True: static shapes, no host read."""
+        for name in self.STATE:
+            getattr(self, name).masked_fill_(done, 0)
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         return {name: getattr(self, name) for name in self.STATE}
@@ -144,3 +157,36 @@ class EpisodeStats:
             if name not in state and name in OPTIONAL_STATE:
                 continue
             setattr(self, name, state[name].to(device=old.device, dtype=old.dtype).clone())
+
+
+class FinishedEpisodes:
+    """Finished episodes kept on the device until the host reads them (drain): recording is static-shape
+    and reads nothing back, so a training loop reads its episodes once every few vector steps.
+
+    Rows go in the order they finished (vector step, then env), as finish() would have returned them.
+    capacity: rows held between two drains; an env ends at most one episode per vector step, so B x K
+    rows hold K vector steps. tag: a long per row (the trainer's vector step)."""
+
+    def __init__(self, capacity: int, width: int, device: torch.device | str, dtype: torch.dtype = torch.float32):
+        self.capacity = capacity
+        # + one scratch row that the envs which did not finish write to (no boolean indexing)
+        self.values = torch.zeros(capacity + 1, width, dtype=dtype, device=device)
+        self.tags = torch.zeros(capacity + 1, dtype=torch.long, device=device)
+        self.count = torch.zeros((), dtype=torch.long, device=device)  # rows held (a device number)
+
+    def record(self, done: torch.Tensor, rows: torch.Tensor, tag: torch.Tensor | int) -> None:
+        """Append rows (B, width) of the envs where done (B,) is True, each tagged with tag."""
+        rank = done.long().cumsum(0) - 1
+        pos = torch.where(done, (self.count + rank).clamp(max=self.capacity), self.capacity)
+        self.values.index_put_((pos,), rows.to(self.values.dtype))
+        self.tags.index_put_((pos,), torch.as_tensor(tag, device=self.tags.device).expand_as(pos))
+        self.count += done.long().sum()
+
+    def drain(self) -> tuple[list[list], list[int]]:
+        """(rows, tags) as host lists, in the order recorded (one host read); the buffer empties."""
+        n = int(self.count)
+        if n > self.capacity:
+            raise RuntimeError(f"{n} finished episodes overflowed a buffer of {self.capacity}: drain more often")
+        values, tags = self.values[:n].cpu().tolist(), self.tags[:n].cpu().tolist()
+        self.count.zero_()
+        return values, tags

@@ -153,6 +153,16 @@ class World:
         s.index_put(idx, fresh)
 
     @torch.inference_mode()
+    def reset_where(self, mask: torch.Tensor) -> None:
+        """reset(mask) in the static form: a masked select of a full spawn, no host read (the same
+        values; compiled worlds always reset this way). Costs a spawn of every env."""
+        if self._compiled is not None:
+            self._compiled.reset(mask.reshape(self.num_envs))
+            return
+        fresh = self.spawn_where(self.state, mask)
+        torch._foreach_copy_(list(astuple_shallow(self.state)), list(astuple_shallow(fresh)))
+
+    @torch.inference_mode()
     def step(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
         """Advance every env by δt with the ego tracking (target lane (B,) long, target speed (B,) m/s).
 
@@ -247,6 +257,33 @@ def step_state(s: WorldState, road: Road, tables: LaneTables, layout: Layout, le
     return StepEvents(collision, success, failure, terminated, truncated, sv_collisions)
 
 
+COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
+
+
+def compile_options(how: bool | str, device: torch.device) -> dict:
+    """torch.compile's keywords for a static-shape graph: fullgraph (a graph break is an error), static
+    shapes. how: True (the device's default: CUDA graphs on CUDA, mode "reduce-overhead"; C++ kernels on the
+    CPU), a torch.compile mode, or a backend name ("eager", "aot_eager": graph capture without code
+    generation, for checks)."""
+    mode, backend = None, "inductor"
+    if how is True:
+        mode = "reduce-overhead" if device.type == "cuda" else None
+    elif how in COMPILE_MODES:
+        mode = how
+    else:
+        backend = how
+    # each World or Trainer adds cache entries for its methods' code (self and its constants are guarded
+    # on); dynamo's default limit of 8 would refuse the ninth compiled one of a process under fullgraph
+    torch._dynamo.config.recompile_limit = max(torch._dynamo.config.recompile_limit, 256)
+    return dict(fullgraph=True, mode=mode, backend=backend, dynamic=False)
+
+
+def uses_cuda_graphs(options: dict, device: torch.device) -> bool:
+    """Whether a graph compiled with these compile_options replays as CUDA graphs (its outputs are then
+    overwritten by its next replay: copy or consume them first)."""
+    return device.type == "cuda" and options["backend"] == "inductor" and options["mode"] == "reduce-overhead"
+
+
 class compiled_step:  # noqa: N801 (used like a function: compiled_step(world, mode))
     """World.step and World.reset(mask) of one world as torch.compile graphs of the static step.
 
@@ -254,24 +291,11 @@ class compiled_step:  # noqa: N801 (used like a function: compiled_step(world, m
     world's state tensors, which therefore stay the same objects that callers may hold. Under CUDA graphs
     the graph's outputs are overwritten by its next replay, hence the copy and the events' clone."""
 
-    MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
-
     def __init__(self, world: World, how: bool | str):
-        """how: True (the device's default: CUDA graphs on CUDA, C++ kernels on the CPU), a torch.compile
-        mode, or a backend name ("eager", "aot_eager": graph capture without code generation, for checks)."""
-        mode, backend = None, "inductor"
-        if how is True:
-            mode = "reduce-overhead" if world.device.type == "cuda" else None
-        elif how in self.MODES:
-            mode = how
-        else:
-            backend = how
+        """how: see compile_options."""
         self.world = world
-        # each World adds cache entries for these methods' code (its road, level and self are guarded on);
-        # dynamo's default limit of 8 would refuse the ninth compiled World of a process under fullgraph
-        torch._dynamo.config.recompile_limit = max(torch._dynamo.config.recompile_limit, 256)
-        self.cuda_graphs = world.device.type == "cuda" and backend == "inductor" and mode == "reduce-overhead"
-        opts = dict(fullgraph=True, mode=mode, backend=backend, dynamic=False)
+        opts = compile_options(how, world.device)
+        self.cuda_graphs = uses_cuda_graphs(opts, world.device)
         # torch.compile is lazy: only the graphs a caller uses are compiled
         self._step = torch.compile(self.pure_step, **opts)
         self._reset = torch.compile(self.pure_reset, **opts)

@@ -6,9 +6,11 @@ import dataclasses
 
 import pytest
 import torch
+import torch.nn.functional as F
 from torch import nn
 
-from highway_srl.agents.dqn import DQNConfig, DQNLearner, UpdateLog, UpdateStats
+from highway_srl.agents.dqn import DQNConfig, DQNLearner, UpdateLog, UpdateStats, td_loss_and_grad
+from highway_srl.agents.ensemble import ensemble_forward
 from highway_srl.agents.gating import EXPERT_ACTION_SETS, expert_action_mask
 from highway_srl.agents.replay import ExpertReplay
 
@@ -140,6 +142,46 @@ def test_updating_some_members_leaves_every_other_member_bit_identical():
             if key in ("online.flat", "adam.exp_avg", "adam.exp_avg_sq", "adam.step"):
                 assert not torch.equal(before[key][m], after[key][m]), (key, m)
     assert after["adam.step"].tolist() == [4, 2, 1, 5, 1]
+
+
+@pytest.mark.parametrize("huber", [False, True])
+def test_written_out_gradient_is_the_autograd_gradient_of_the_summed_member_losses(huber):
+    gen = torch.Generator().manual_seed(3)
+    learner = DQNLearner(3, expert_action_mask()[[0, 5, 9]], SMALL, obs_dim=5, generator=gen)
+    batch = _batch(learner.action_mask, 16, 5, gen)
+    y = 3.0 * torch.randn(3, 16, generator=gen)  # large errors: Huber's clipped branch runs too
+    theta = learner.online.flat.detach().clone().requires_grad_()
+    q = ensemble_forward(learner.online.unflatten(theta), batch["obs"])
+    q_sa = q.gather(2, batch["action"].unsqueeze(2)).squeeze(2)
+    loss = F.smooth_l1_loss(q_sa, y, reduction="none").mean(1) if huber else (q_sa - y).square().mean(1)
+    (want,) = torch.autograd.grad(loss.sum(), theta)
+    got_q, got_loss, got = td_loss_and_grad(learner.online, theta.detach(), batch["obs"], batch["action"], y, huber)
+    torch.testing.assert_close(got_q, q_sa.detach())
+    torch.testing.assert_close(got_loss, loss.detach())
+    torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-7)
+
+
+def test_masked_update_steps_the_masked_in_members_as_update_does_and_leaves_the_others_unchanged():
+    gen = torch.Generator().manual_seed(4)
+    cfg = dataclasses.replace(SMALL, target_update_interval=2)  # a target sync happens within the 3 updates
+    make = lambda: DQNLearner(4, expert_action_mask()[[0, 1, 5, 7]], cfg, obs_dim=5,  # noqa: E731
+                              generator=torch.Generator().manual_seed(0))
+    compact, masked = make(), make()
+    every = torch.arange(4)
+    mask = torch.tensor([True, False, True, False])
+    for _ in range(3):
+        batch = _batch(compact.action_mask, 16, 5, gen)
+        before = _state(masked)
+        compact.update(torch.tensor([0, 2]), {k: v[[0, 2]] for k, v in batch.items()})
+        stats = masked.update_masked(every, batch, mask)
+        after = masked.state_dict()
+        for key in ("online.flat", "target.flat", "adam.exp_avg", "adam.exp_avg_sq", "adam.step", "target_update_count"):
+            assert torch.equal(before[key][[1, 3]], after[key][[1, 3]]), key
+            torch.testing.assert_close(after[key][[0, 2]], compact.state_dict()[key][[0, 2]], rtol=1e-5, atol=1e-6)
+        assert stats.loss.shape == (4,)
+    # the 3rd update takes the counter past 2: the target takes the online weights, for the updated members only
+    assert torch.equal(masked.target.flat[[0, 2]], masked.online.flat[[0, 2]])
+    assert not torch.equal(masked.target.flat[[0, 2]], make().target.flat[[0, 2]])
 
 
 def test_target_network_takes_the_online_weights_when_the_member_counter_exceeds_the_interval():

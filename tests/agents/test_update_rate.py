@@ -43,6 +43,50 @@ def test_legacy_updates_per_step_gives_that_many_steps_to_every_member_that_acte
     assert dict(zip(members.tolist(), updates.tolist())) == {0: 3, 3: 3, 5: 3}
 
 
+@pytest.mark.parametrize("method", ["moe-rm-srl", "lm-rl"])
+def test_static_form_gives_each_member_exactly_the_steps_it_is_owed_under_a_mask(method):
+    trainer = Trainer(small(method=method, static=True))
+    trainer.replay.size[:] = 10
+    acted = torch.tensor([0, 0, 0, 5, -1, 3, 0, 5]) if method == "moe-rm-srl" else torch.zeros(8, dtype=torch.long)
+    before = trainer.learner.adam_step.clone()
+    trainer._update(acted)
+    stepped = (trainer.learner.adam_step - before).long().tolist()
+    if method == "moe-rm-srl":
+        assert stepped == [4, 0, 0, 1, 0, 2, 0, 0, 0, 0, 0]  # as the compact form: 7 steps, 0: 4, 3: 1, 5: 2
+        assert trainer.static_rounds == 8  # ceil(1 x 8 envs): all members, 8 masked rounds
+    else:
+        assert stepped == [8, 8]  # the reward network and its cost network, 8 steps each
+    assert int(trainer.update_log.count) == sum(stepped[::2] if method == "lm-rl" else stepped)
+
+
+def test_static_rounds_cover_the_most_a_member_can_be_owed_with_the_carried_fraction():
+    trainer = Trainer(small(method="rl", replay_ratio=0.3125, static=True))
+    trainer.replay.size[:] = 10
+    assert trainer.static_rounds == 3  # ceil(0.3125 x 8)
+    owed = [int(trainer.owed_updates(torch.zeros(8, dtype=torch.long))[0]) for _ in range(5)]
+    assert owed == [2, 3, 2, 3, 2] and max(owed) <= trainer.static_rounds  # 2.5 per step, fractions carried
+
+
+def test_owed_updates_stay_on_the_trainers_device_with_the_credit():
+    trainer = Trainer(small(method="rl", replay_ratio=0.25))
+    trainer.replay.size[:] = 10
+    owed = trainer.owed_updates(torch.zeros(3, dtype=torch.long))
+    assert owed.device == trainer.device and trainer.update_credit.device == trainer.device
+    assert owed.tolist() == [0] and trainer.update_credit.tolist() == [0.75]
+
+
+@pytest.mark.parametrize("method", ["rl", "lm-rl"])
+def test_static_and_compact_forms_train_one_network_per_seed_alike(method):
+    """With one trained network per seed every member is owed steps each vector step: the masked static
+    update is the compact one (same draws, same order), to float rounding of the written-out gradient."""
+    a, b = Trainer(small(method=method)), Trainer(small(method=method, static=True))
+    for _ in range(12):
+        a.step()
+        b.step()
+    torch.testing.assert_close(a.learner.online.flat, b.learner.online.flat, rtol=1e-4, atol=1e-5)
+    assert torch.equal(a.world.state.x, b.world.state.x)
+
+
 def test_config_written_before_profiles_and_replay_ratio_reads_as_what_it_ran_under():
     old = {"method": "sr-rl", "updates_per_step": 4, "seeds": [0]}
     cfg = TrainConfig.from_dict(old)
