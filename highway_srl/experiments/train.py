@@ -376,15 +376,15 @@ def bench_train(method: str, scenario: str, traffic: str, envs: int, steps: int,
 
 
 def bench_train_form(method: str, scenario: str, traffic: str, envs: int, steps: int, device: str, seeds: int,
-                     compile: bool | str, static: bool | None) -> dict:
+                     compile: bool | str, static: bool | None, batch_size: int = 256) -> dict:
     """One form of bench_train: {device, static, compile, warmup_s, wall_s, env_steps_per_s,
-    env_steps_per_s_with_compile}."""
+    env_steps_per_s_with_compile}. batch_size: Table 2's 256 (scripts/device_check.py's smoke run: less)."""
     from highway_srl.agents.dqn import DQNConfig
 
     start = time.perf_counter()
     cfg = TrainConfig(method=method, scenario=scenario, traffic=traffic, envs=envs, seeds=tuple(range(seeds)),
                       device=device, steps=10**9, replay_ratio=1.0, static=static, compile=compile,
-                      dqn=DQNConfig(learning_starts=0, batch_size=256))
+                      dqn=DQNConfig(learning_starts=0, batch_size=batch_size))
     trainer = Trainer(cfg, drain_every=DRAIN_EVERY)
     sync = torch.cuda.synchronize if trainer.device.type == "cuda" else (lambda: None)
     # fill every acting member's buffer past one batch so updates run from the first timed step

@@ -165,17 +165,35 @@ def worker_threads(workers: int) -> int:
     return max(1, (os.cpu_count() or 1) // max(1, workers))
 
 
+def gpu_count() -> int:
+    import torch
+
+    return torch.cuda.device_count() if torch.cuda.is_available() else 0
+
+
+def place_jobs(device: str, count: int, gpus: int) -> list[str]:
+    """The device of each of `count` jobs in the order they are handed out. --device cuda with several GPUs:
+    round robin over them (cuda:0, cuda:1, ...), so that the workers spread over every GPU; otherwise (one
+    GPU, an explicit cuda:N, the CPU) the device as given. Either way the `--jobs N` worker processes train
+    their jobs at once, N on one GPU sharing it (each its own process and CUDA context)."""
+    if device != "cuda" or gpus <= 1:
+        return [device] * count
+    return [f"cuda:{i % gpus}" for i in range(count)]
+
+
 def run_local(jobs: list[Job], root: Path, device: str, workers: int, on_result, work: Work = run_job) -> None:
-    """`workers` worker processes (spawned, reused across jobs); one job runs inline when workers == 1."""
+    """`workers` worker processes (spawned, reused across jobs); one job runs inline when workers == 1.
+    Jobs go to devices by place_jobs."""
     threads = worker_threads(workers)
+    devices = place_jobs(device, len(jobs), gpu_count() if device == "cuda" else 0)
     if workers <= 1 or len(jobs) <= 1:
-        for job in jobs:
-            on_result(job, work(job.to_dict(), str(root), device, threads))
+        for job, dev in zip(jobs, devices):
+            on_result(job, work(job.to_dict(), str(root), dev, threads))
         return
     import multiprocessing as mp
 
     with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=mp.get_context("spawn")) as pool:
-        futures = {pool.submit(work, job.to_dict(), str(root), device, threads): job for job in jobs}
+        futures = {pool.submit(work, job.to_dict(), str(root), dev, threads): job for job, dev in zip(jobs, devices)}
         try:
             for fut in as_completed(futures):
                 job = futures[fut]

@@ -32,18 +32,20 @@ def test_package_simulator_and_trainer_import_without_gymnasium():
     assert done.stdout.strip() == "imported"
 
 
-def test_device_check_cpu_smoke_writes_every_part_and_the_projections(tmp_path):
+def test_device_check_without_a_gpu_runs_the_cpu_smoke_and_writes_every_part_and_the_projections(tmp_path):
     out = tmp_path / "check.json"
     runner = BLOCK_GYMNASIUM + "import runpy, sys\nsys.argv = sys.argv[1:]\n" \
         "runpy.run_path(sys.argv[0], run_name='__main__')\n"
-    cmd = [sys.executable, "-c", runner, str(ROOT / "scripts" / "device_check.py"), "--cpu-smoke", "--out", str(out)]
+    cmd = [sys.executable, "-c", runner, str(ROOT / "scripts" / "device_check.py"), "--out", str(out)]
     done = subprocess.run(cmd, env=_env(), capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     report = json.loads(out.read_text())
-    assert report == json.loads(done.stdout)
+    assert report == json.loads(done.stdout) and report["cpu_smoke"] and "no CUDA device" in done.stderr
     statuses = {name: part["status"] for name, part in report["parts"].items()}
     assert statuses and set(statuses.values()) == {"ok"}, report["parts"]
-    assert {"gpu-tests", "train-moe-rm-srl-1-seeds", "train-moe-rm-srl-10-seeds"} <= set(statuses)
-    assert any(name.endswith("-compiled") for name in statuses)
-    assert report["projections"]["study_h"] > 0
+    trains = {f"train-moe-rm-srl-{n}-seeds{how}" for n in (1, 10) for how in ("", "-compiled")}
+    assert {"gpu-tests", *trains} <= set(statuses)
+    assert any(name.startswith("sim-") and name.endswith("-compiled") for name in statuses)
+    projected = report["projections"]
+    assert projected["study_h"] > 0 and projected["eager"]["study_h"] > 0 and projected["compiled"]["study_h"] > 0
     assert report["parts"]["gpu-tests"]["result"]["returncode"] == 0

@@ -81,6 +81,15 @@ def fake_work(job_dict: dict, root: str, device: str = "cpu", threads: int = 1, 
     return {"status": "done", "message": None, "wall_s": 0.01, "host": "test"}
 
 
+def device_work(job_dict: dict, root: str, device: str = "cpu", threads: int = 1, return_files: bool = False) -> dict:
+    """fake_work that also records the device and process each job was given, in ROOT.devices.jsonl."""
+    import os
+
+    with open(f"{root}.devices.jsonl", "a") as f:
+        f.write(json.dumps({"job": Job.from_dict(job_dict).id, "device": device, "pid": os.getpid()}) + "\n")
+    return fake_work(job_dict, root, device, threads, return_files)
+
+
 def calls(root: Path) -> list[str]:
     path = Path(f"{root}.calls.jsonl")
     return [json.loads(line)["job"] for line in path.read_text().splitlines()] if path.exists() else []

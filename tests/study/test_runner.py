@@ -4,6 +4,7 @@ workers, and one-line errors for bad input."""
 from __future__ import annotations
 
 import json
+import os
 
 import pytest
 import study_fakes as fakes
@@ -12,7 +13,8 @@ from highway_srl.agents import registry as methods_mod
 from highway_srl.cli import main
 from highway_srl.experiments import evaluate as evaluate_mod
 from highway_srl.experiments import train as train_mod
-from highway_srl.study.runner import reproduce, run_job
+from highway_srl.study import runner as runner_mod
+from highway_srl.study.runner import place_jobs, reproduce, run_job
 from highway_srl.experiments.runs import read_json
 from highway_srl.study.jobs import OURS, study_jobs
 
@@ -95,6 +97,26 @@ def test_local_executor_runs_jobs_in_parallel_worker_processes(tmp_path):
     state = reproduce("smoke", root, jobs=2, work=fakes.fake_work, methods=(OURS,), **QUIET)
     assert len(state["jobs"]) == 11 and all(v["status"] == "done" for v in state["jobs"].values())
     assert sorted(fakes.calls(root)) == sorted(state["jobs"])
+
+
+def test_jobs_spread_round_robin_over_the_gpus_and_otherwise_share_the_given_device():
+    assert place_jobs("cuda", 5, gpus=2) == ["cuda:0", "cuda:1", "cuda:0", "cuda:1", "cuda:0"]
+    assert place_jobs("cuda", 3, gpus=1) == ["cuda"] * 3  # --jobs N on one GPU: N processes share it
+    assert place_jobs("cuda:1", 2, gpus=4) == ["cuda:1"] * 2 and place_jobs("cpu", 2, gpus=0) == ["cpu"] * 2
+
+
+def test_local_workers_get_each_job_on_its_placed_device(tmp_path, monkeypatch):
+    """The CPU equivalent of --device cuda --jobs 2 on a 2-GPU machine: two worker processes, jobs alternating
+    between the devices (the stand-in work only records the device it was given)."""
+    monkeypatch.setattr(runner_mod, "gpu_count", lambda: 2)
+    root = tmp_path / "study"
+    jobs = study_jobs("smoke", (OURS,))[:4]
+    results = []
+    runner_mod.run_local(jobs, root, "cuda", 2, lambda job, r: results.append(r), work=fakes.device_work)
+    rows = [json.loads(line) for line in (tmp_path / "study.devices.jsonl").read_text().splitlines()]
+    placed = dict(zip([j.id for j in jobs], ["cuda:0", "cuda:1", "cuda:0", "cuda:1"]))
+    assert {r["job"]: r["device"] for r in rows} == placed and len(results) == 4
+    assert all(r["pid"] != os.getpid() for r in rows)  # in worker processes, not the driver
 
 
 def _cli(capsys, *argv) -> tuple[int, list[str]]:
