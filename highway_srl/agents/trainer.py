@@ -153,6 +153,7 @@ class Trainer:
         self.static = cfg.static if cfg.static is not None else bool(cfg.compile) or self.device.type == "cuda"
         if cfg.compile and not self.static:
             raise ValueError("compile needs the static step (static=False was set)")
+        self.world.static = self.static
         self.method: Method = make_method(cfg.method, cfg.scenario, self.num_seeds, cfg.options, cfg.profile)
         self.layer = self.method.make_layer(self.world.road)
         self.learner = DQNLearner(
@@ -163,6 +164,7 @@ class Trainer:
                                    with_cost=self.method.uses_cost)
         self.gen = torch.Generator(device=self.device).manual_seed(cfg.seeds[0] + 12345)
         self.vector_steps = 0
+        self.step_count = torch.zeros((), dtype=torch.long, device=self.device)
         # acting member counts, slot 0 = the final fallback (no expert)
         self.usage = torch.zeros(self.method.num_members + 1, dtype=torch.long, device=self.device)
         self.update_log = UpdateLog(self.device)  # loss, Q, TD error since the last log (not checkpointed)
@@ -202,7 +204,8 @@ class Trainer:
                           share=cfg.share_transitions)
         done = events.terminated | events.truncated
         self.vector_steps += 1
-        self.finished.record(done, self.stats.rows(), self.vector_steps)
+        self.step_count += 1  # the same count on the device: tags the episodes without a host-to-device copy
+        self.finished.record(done, self.stats.rows(), self.step_count)
         self.stats.restart(done)
         if self.static:
             world.reset_where(done)
@@ -313,6 +316,7 @@ class Trainer:
         self.stats.load_state_dict({name: state[key] for name, key in EPISODE_KEYS.items() if key in state})
         self.gen.set_state(state["rng.trainer"].cpu() if self.device.type == "cpu" else state["rng.trainer"])
         self.vector_steps = int(state["counters.vector_steps"][0])
+        self.step_count.fill_(self.vector_steps)
         self.usage = state["counters.usage"].to(self.device).clone()
         if "counters.update_credit" in state:
             self.update_credit = state["counters.update_credit"].to(self.device, torch.float64).clone()

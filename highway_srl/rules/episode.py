@@ -174,12 +174,13 @@ class FinishedEpisodes:
         self.tags = torch.zeros(capacity + 1, dtype=torch.long, device=device)
         self.count = torch.zeros((), dtype=torch.long, device=device)  # rows held (a device number)
 
-    def record(self, done: torch.Tensor, rows: torch.Tensor, tag: torch.Tensor | int) -> None:
-        """Append rows (B, width) of the envs where done (B,) is True, each tagged with tag."""
+    def record(self, done: torch.Tensor, rows: torch.Tensor, tag: torch.Tensor) -> None:
+        """Append rows (B, width) of the envs where done (B,) is True, each tagged with tag (a long tensor
+        on the device: a Python number would be a host-to-device copy, which waits for the device)."""
         rank = done.long().cumsum(0) - 1
         pos = torch.where(done, (self.count + rank).clamp(max=self.capacity), self.capacity)
         self.values.index_put_((pos,), rows.to(self.values.dtype))
-        self.tags.index_put_((pos,), torch.as_tensor(tag, device=self.tags.device).expand_as(pos))
+        self.tags.index_put_((pos,), tag.expand_as(pos))
         self.count += done.long().sum()
 
     def drain(self) -> tuple[list[list], list[int]]:

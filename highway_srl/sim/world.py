@@ -137,6 +137,8 @@ class World:
             self.road, level, self.layout, seeds.to(self.device), torch.zeros_like(seeds).to(self.device), self.style
         )
         self._compiled = compiled_step(self, compile) if compile else None
+        # eager steps in the static form (no host read; bit-identical, more work: a sync-free loop on a GPU)
+        self.static = False
 
     # ------------------------------------------------------------------ episodes
     @torch.inference_mode()
@@ -174,7 +176,7 @@ class World:
         if self._compiled is not None:
             return self._compiled.step(target_lane, target_speed)
         return step_state(s, self.road, self._lane_tables, self.layout, self.level, target_lane, target_speed,
-                          self.active_adversary, self.max_steps)
+                          self.active_adversary, self.max_steps, static=self.static)
 
     @property
     def active_adversary(self) -> str | None:
