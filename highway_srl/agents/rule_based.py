@@ -5,7 +5,8 @@ It chooses among A* on a SafetyLayer's model of the step, so it drives every sce
      -A_SLOWER, else Idle;
   2. lane-change wish: mandatory changes (merge: off the on-ramp; exit: towards the off-ramp);
      discretionary changes when the IDM acceleration behind SV2 beats the one behind SV1 by MOBIL_GAIN (not
-     while near the boundary, never back onto a ramp, only rightwards on exit);
+     while near the boundary, never back onto a ramp, only rightwards on exit); either only when the target
+     lane has room by the built-in driver's gap rule (sim/policies.room_to_change on SV2 ahead, SV4 behind);
   3. a change under way: with the layer's hold_lane_change (Faster/Idle/Slower keep the target lane) the
      driver continues it with the longitudinal wish, now also behind the target lane's leader SV2; with the
      literal Eq. 34 (they reset the target to C_ID) it keeps asking for LaneChange;
@@ -20,7 +21,7 @@ import torch
 from highway_srl.constants import V_MAX_MPS
 from highway_srl.scenarios import EXIT, MERGE, scenario_spec
 from highway_srl.rules import FASTER, IDLE, LANE_CHANGE, SLOWER, ModelStep, SafetyStep, choose_second
-from highway_srl.sim.policies import EGO_JAM_M
+from highway_srl.sim.policies import EGO_JAM_M, room_to_change
 from highway_srl.sim.traffic import idm_accel
 
 JAM_DISTANCE_M = EGO_JAM_M  # IDM s0 of the ego, shared with the built-in driver (sim/policies.py)
@@ -73,7 +74,12 @@ def lane_change_wish(model: ModelStep, ego_v: torch.Tensor, scenario: str, hold_
     else:
         mandatory = torch.zeros_like(real)
         allowed = real
-    start = allowed & ~model.m_l_ego & ((gain > MOBIL_GAIN_MPS2) | mandatory)
+    # the built-in driver's gap rule on the target lane's SV2 (ahead) and SV4 (behind); SV_i,Def are no cars
+    inf = torch.full_like(gain, float("inf"))
+    gap_ahead = torch.where(veh.virtual[:, 1], inf, gaps[:, 1])
+    gap_behind = torch.where(veh.virtual[:, 3], inf, gaps[:, 3])
+    room = room_to_change(gap_ahead, veh.vx[:, 1], gap_behind, veh.vx[:, 3], ego_v)
+    start = allowed & ~model.m_l_ego & room & ((gain > MOBIL_GAIN_MPS2) | mandatory)
     wish = torch.where(mandatory, torch.full_like(gain, float("inf")), gain)
     wish = torch.where(start, wish, torch.full_like(gain, NO_WISH))
     in_progress = lane_change_in_progress(model)
