@@ -301,7 +301,7 @@ def _cmd_play(args) -> int:
     return 0
 
 
-def add_parsers(sub, scenario_args) -> None:
+def _add_train(sub, scenario_args) -> None:
     p = sub.add_parser("train", help="train a method; writes a run folder")
     p.add_argument("--method", default="moe-rm-srl")
     scenario_args(p)
@@ -333,6 +333,8 @@ def add_parsers(sub, scenario_args) -> None:
     p.add_argument("--out", required=True, help="run folder")
     p.set_defaults(func=_cmd_train)
 
+
+def _add_evaluate(sub) -> None:
     p = sub.add_parser("evaluate", help="deployment metrics of a trained run")
     p.add_argument("run")
     p.add_argument("--scenario", default=None)
@@ -352,6 +354,8 @@ def add_parsers(sub, scenario_args) -> None:
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_evaluate)
 
+
+def _add_play(sub, scenario_args) -> None:
     p = sub.add_parser("play", help="drive the ego yourself (the Manual baseline); needs pygame")
     scenario_args(p)
     p.add_argument("--episodes", type=positive, default=1)
@@ -360,6 +364,8 @@ def add_parsers(sub, scenario_args) -> None:
     p.add_argument("--out", required=True, help="run folder: config.json, episodes.jsonl, metrics.json")
     p.set_defaults(func=_cmd_play)
 
+
+def _add_demo(sub) -> None:
     p = sub.add_parser("demo", help="the main job: train MoE-RM-SRL briefly, evaluate on levels A-F, write a report")
     p.add_argument("--steps", type=positive, default=30_000)
     p.add_argument("--envs", type=positive, default=16)
@@ -369,6 +375,8 @@ def add_parsers(sub, scenario_args) -> None:
                    "trained with the same --steps, --envs and --seed")
     p.set_defaults(func=_cmd_demo)
 
+
+def _add_reproduce(sub) -> None:
     p = sub.add_parser("reproduce", help="run the paper's whole study (groups 1-3, Tables 5-6, figures, report)",
                        description="Train and evaluate every method on every scene of the paper's study, then write "
                        "tables (CSV, Markdown), figures (PNG, SVG) and OUT/report.md + report.html. Finished jobs "
@@ -394,6 +402,8 @@ def add_parsers(sub, scenario_args) -> None:
                    "budget's (smoke: paper; quick and paper: paper,safe)")
     p.set_defaults(func=_cmd_reproduce)
 
+
+def _add_transfer(sub) -> None:
     from highway_srl.study import transfer as tr
 
     p = sub.add_parser("transfer", help="train in our simulator, deploy in SUMO and highway-env; a side-by-side table",
@@ -411,3 +421,13 @@ def add_parsers(sub, scenario_args) -> None:
     p.add_argument("--jobs", type=positive, default=1, help="jobs at a time (worker processes, one thread each)")
     p.add_argument("--out", default="results/transfer")
     p.set_defaults(func=_cmd_transfer)
+
+
+def add_parsers(sub, scenario_args) -> None:
+    """Register the subcommands on the CLI's subparsers; scenario_args(p) adds --scenario, --traffic and --adversarial."""
+    _add_train(sub, scenario_args)
+    _add_evaluate(sub)
+    _add_play(sub, scenario_args)
+    _add_demo(sub)
+    _add_reproduce(sub)
+    _add_transfer(sub)

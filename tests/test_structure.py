@@ -1,5 +1,5 @@
 """The house's shape (issue 11): no import circle among highway_srl's modules, dependencies point down the
-layers, and no private name (_x) is imported from another module."""
+layers, no private name (_x) is imported from another module, and no function is over 60 lines."""
 
 import ast
 from pathlib import Path
@@ -94,3 +94,19 @@ def test_no_private_name_is_imported_from_another_module():
     private = [f"{name}: {module}.{n}" for name, path in _modules().items() for module, names in _imports(path)
                for n in names if n.startswith("_") and n != "__version__"]
     assert private == []
+
+
+MAX_FUNCTION_LINES = 60  # issue 11: a function a reader takes in at once; longer ones are split into named steps
+
+
+def test_no_function_is_longer_than_60_lines():
+    # a function's length: from its `def` line to its last line, docstring, comments and blank lines included
+    # (what a reader scrolls through); nested functions count in their enclosing one and on their own
+    long = []
+    for name, path in _modules().items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                lines = node.end_lineno - node.lineno + 1
+                if lines > MAX_FUNCTION_LINES:
+                    long.append(f"{name}.{node.name}: {lines} lines")
+    assert long == []

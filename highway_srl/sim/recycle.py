@@ -80,6 +80,38 @@ def _entry_speed(v, v0, v_behind, v_ahead):
     return torch.where(torch.isnan(v_ahead), torch.maximum(out, v0), torch.minimum(out, v_ahead))
 
 
+def _reentries(x, v, v0, occ, to_back, to_front, keys, road: Road, level: TrafficLevel, reach: float):
+    """Where the leavers re-enter, for the envs given (all (E, N) but occ (lanes, E, N), keys (E,)):
+    (moving bool, new lane, x, v), x and v unchanged for the others."""
+    need = VEHICLE_LENGTH_M + level.headway_m[0]
+    hide = D_MAX_M + VEHICLE_LENGTH_M
+    ex = x[:, 0]
+    edge = reach - need
+    back = _entry_slots(x, v, occ, ex - edge, ex - hide, need, from_edge_lo=True)
+    front = _entry_slots(x, v, occ, ex + hide, ex + edge, need, from_edge_lo=False)
+    pick = rng.randint(keys, road.mainline_lanes, 2)  # (E, 2): preferred lane for the back and the front entry
+    lb, xb, vb_behind, vb_ahead, okb = _choose_lane(back, pick[:, 0], "low")
+    lf, xf, vf_behind, vf_ahead, okf = _choose_lane(front, pick[:, 1], "high")
+    any_back, any_front = to_back.any(1, keepdim=True), to_front.any(1, keepdim=True)
+    # an end without room sends its leaver to the other end, if that entry is not taken this step
+    go_back = (to_back & okb) | (to_front & ~okf & okb & ~any_back)
+    go_front = (to_front & okf) | (to_back & ~okb & okf & ~any_front)
+    new_lane = torch.where(go_back, lb, lf)
+    x = torch.where(go_back, xb, torch.where(go_front, xf, x))
+    v = torch.where(go_back, _entry_speed(v, v0, vb_behind, vb_ahead),
+                    torch.where(go_front, _entry_speed(v, v0, vf_behind, vf_ahead), v))
+    return go_back | go_front, new_lane, x, v
+
+
+def _fresh_intent(seed, episode, t, road: Road) -> torch.Tensor:
+    """(E, 1) long: the intent of a car re-entering in each env (E,): in the exit scenario a drawn share
+    exits, elsewhere none; (1, 1) NO_INTENT when nobody exits."""
+    if road.spec.svs_may_exit:
+        exits = rng.uniform(rng.key(seed, episode, t, S_RECYCLE_INTENT)) < EXIT_INTENT_PROB
+        return torch.where(exits, EXIT_INTENT, NO_INTENT)[:, None]
+    return torch.full((1, 1), NO_INTENT, device=seed.device)
+
+
 def recycle(s: WorldState, road: Road, layout: Layout, level: TrafficLevel, static: bool = False) -> None:
     """Keep the flow centred on the ego (a closed loop): an SV that leaves the window [ego - reach,
     ego + reach] (reach = window + margin), or the map at the off-ramp's end, re-enters at the other end.
@@ -108,34 +140,16 @@ def recycle(s: WorldState, road: Road, layout: Layout, level: TrafficLevel, stat
         if envs.numel() == 0:
             return
         sub = lambda t: t.index_select(0, envs)  # noqa: E731
-    w = road.lane_width_m
-    need = VEHICLE_LENGTH_M + level.headway_m[0]
-    hide = D_MAX_M + VEHICLE_LENGTH_M
     x, v, y, h, lane, tgt = sub(s.x), sub(s.v), sub(s.y), sub(s.heading), sub(s.lane), sub(s.target_lane)
-    v0 = sub(s.v0)
-    ex = x[:, 0]
     to_back, to_front = sub(to_back), sub(to_front)
     # one per end and env: the first flagged index
     to_back &= torch.cumsum(to_back.int(), 1) == 1
     to_front &= torch.cumsum(to_front.int(), 1) == 1
     inside = ~(sub(ahead_out) | sub(behind_out) | to_back)
-    occ = occupancy(y, lateral_half_extent(h), lane, tgt, road.mainline_lanes, w) & inside
-    edge = reach - need
-    back = _entry_slots(x, v, occ, ex - edge, ex - hide, need, from_edge_lo=True)
-    front = _entry_slots(x, v, occ, ex + hide, ex + edge, need, from_edge_lo=False)
+    occ = occupancy(y, lateral_half_extent(h), lane, tgt, road.mainline_lanes, road.lane_width_m) & inside
     keys = rng.key(sub(s.seed), sub(s.episode), sub(s.t), S_RECYCLE_LANE)
-    pick = rng.randint(keys, road.mainline_lanes, 2)  # (E, 2): preferred lane for the back and the front entry
-    lb, xb, vb_behind, vb_ahead, okb = _choose_lane(back, pick[:, 0], "low")
-    lf, xf, vf_behind, vf_ahead, okf = _choose_lane(front, pick[:, 1], "high")
-    any_back, any_front = to_back.any(1, keepdim=True), to_front.any(1, keepdim=True)
-    # an end without room sends its leaver to the other end, if that entry is not taken this step
-    go_back = (to_back & okb) | (to_front & ~okf & okb & ~any_back)
-    go_front = (to_front & okf) | (to_back & ~okb & okf & ~any_front)
-    moving = go_back | go_front
-    new_lane = torch.where(go_back, lb, lf)
-    x = torch.where(go_back, xb, torch.where(go_front, xf, x))
-    v = torch.where(go_back, _entry_speed(v, v0, vb_behind, vb_ahead),
-                    torch.where(go_front, _entry_speed(v, v0, vf_behind, vf_ahead), v))
+    moving, new_lane, x, v = _reentries(x, v, sub(s.v0), occ, to_back, to_front, keys, road, level, reach)
+
     def put(name: str, value: torch.Tensor) -> None:
         t = getattr(s, name)
         if envs is None:
@@ -145,14 +159,9 @@ def recycle(s: WorldState, road: Road, layout: Layout, level: TrafficLevel, stat
 
     put("x", x)
     put("v", v)
-    put("y", torch.where(moving, new_lane.float() * w, y))
+    put("y", torch.where(moving, new_lane.float() * road.lane_width_m, y))
     put("heading", torch.where(moving, 0.0, h))
     put("lane", torch.where(moving, new_lane, lane))
     put("target_lane", torch.where(moving, new_lane, tgt))
     put("forced", sub(s.forced) & ~moving)
-    if road.spec.svs_may_exit:
-        exits = rng.uniform(rng.key(sub(s.seed), sub(s.episode), sub(s.t), S_RECYCLE_INTENT)) < EXIT_INTENT_PROB
-        fresh = torch.where(exits, EXIT_INTENT, NO_INTENT)[:, None]
-    else:
-        fresh = torch.full((1, 1), NO_INTENT, device=x.device)
-    put("intent", torch.where(moving, fresh, sub(s.intent)))
+    put("intent", torch.where(moving, _fresh_intent(sub(s.seed), sub(s.episode), sub(s.t), road), sub(s.intent)))

@@ -80,27 +80,12 @@ def make_layout(road: Road, level: TrafficLevel, num_vehicles: int) -> Layout:
     )
 
 
-def spawn(
-    road: Road,
-    level: TrafficLevel,
-    layout: Layout,
-    seed: torch.Tensor,
-    episode: torch.Tensor,
-    style: int | None,
-) -> WorldState:
-    """Fresh episodes for envs with these seeds and episode numbers (each (B,) long)."""
-    dev = seed.device
-    b, m = seed.shape[0], layout.lane.shape[0]
-    n = m + 1
+def _sv_x(road: Road, level: TrafficLevel, layout: Layout, key, ego_x: torch.Tensor,
+          ego_lane: torch.Tensor) -> torch.Tensor:
+    """(B, M) m: the SVs' positions, queued ahead of and behind the ego in each lane with drawn headways."""
+    dev = ego_x.device
+    b, m = ego_x.shape[0], layout.lane.shape[0]
     lay_lane, side = layout.lane.to(dev), layout.side.to(dev)
-    key = lambda stream: rng.key(seed, episode, 0, stream)  # noqa: E731
-
-    starts = torch.tensor(road.ego_start_lanes, device=dev)
-    ego_lane = starts[rng.randint(key(S_EGO_LANE), len(road.ego_start_lanes))]
-    ego_x = torch.full((b,), road.ego_start_x_m, device=dev)
-    lo, hi = SV_INIT_SPEED_MPS
-    speed = lo + (hi - lo) * rng.uniform(key(S_SPEED), n)  # (B, N), column 0 for the ego
-
     h_lo, h_hi = level.headway_m
     spacing = VEHICLE_LENGTH_M + h_lo + (h_hi - h_lo) * rng.uniform(key(S_HEADWAY), m)  # (B, M)
     # distance from the ego along the queue: a running sum per queue (cumsum, not a matrix product, so that
@@ -118,27 +103,56 @@ def spawn(
     u = torch.gather(phase, 1, sv_lane)
     shift = torch.where(side > 0, (1 - u) * first_spacing, u * first_spacing)
     shift = torch.where(in_ego_lane | layout.ramp.to(dev), torch.zeros_like(shift), shift)
-    sv_x = ego_x[:, None] + side * (offset - shift)
+    return ego_x[:, None] + side * (offset - shift)
 
-    x = torch.cat([ego_x[:, None], sv_x], 1)
-    lane = torch.cat([ego_lane[:, None], sv_lane], 1)
-    y = lane.to(torch.float32) * road.lane_width_m
 
+def _styles(key, style: int | None, b: int, m: int, dev) -> torch.Tensor:
+    """(B, N) long: each vehicle's index into STYLES, the ego's 0; drawn unless one `style` is given."""
     if style is None:
         sv_style = rng.randint(key(S_STYLE), len(STYLES), m)
     else:
         sv_style = torch.full((b, m), style, dtype=torch.long, device=dev)
-    sty = torch.cat([torch.zeros(b, 1, dtype=torch.long, device=dev), sv_style], 1)
-    table = lambda attr: torch.tensor([getattr(s, attr) for s in STYLES], device=dev)[sty]  # noqa: E731
-    v0 = (1.0 + table("speed_violation").float()) * V_MAX_MPS
-    v0[:, 0] = V_MAX_MPS
+    return torch.cat([torch.zeros(b, 1, dtype=torch.long, device=dev), sv_style], 1)
 
-    intent = torch.full((b, n), NO_INTENT, dtype=torch.long, device=dev)
+
+def _intents(road: Road, layout: Layout, key, b: int, m: int, dev) -> torch.Tensor:
+    """(B, N) long: ramp SVs merge; in the exit scenario a drawn share of the mainline SVs exit."""
+    intent = torch.full((b, m + 1), NO_INTENT, dtype=torch.long, device=dev)
     if road.spec.svs_start_on_ramp:
         intent[:, 1:] = torch.where(layout.ramp.to(dev), MERGE_INTENT, NO_INTENT).expand(b, m)
     elif road.spec.svs_may_exit:
         exits = rng.uniform(key(S_INTENT), m) < EXIT_INTENT_PROB
         intent[:, 1:] = torch.where(exits, EXIT_INTENT, NO_INTENT)
+    return intent
+
+
+def spawn(
+    road: Road,
+    level: TrafficLevel,
+    layout: Layout,
+    seed: torch.Tensor,
+    episode: torch.Tensor,
+    style: int | None,
+) -> WorldState:
+    """Fresh episodes for envs with these seeds and episode numbers (each (B,) long)."""
+    dev = seed.device
+    b, m = seed.shape[0], layout.lane.shape[0]
+    n = m + 1
+    key = lambda stream: rng.key(seed, episode, 0, stream)  # noqa: E731
+
+    starts = torch.tensor(road.ego_start_lanes, device=dev)
+    ego_lane = starts[rng.randint(key(S_EGO_LANE), len(road.ego_start_lanes))]
+    ego_x = torch.full((b,), road.ego_start_x_m, device=dev)
+    lo, hi = SV_INIT_SPEED_MPS
+    speed = lo + (hi - lo) * rng.uniform(key(S_SPEED), n)  # (B, N), column 0 for the ego
+    x = torch.cat([ego_x[:, None], _sv_x(road, level, layout, key, ego_x, ego_lane)], 1)
+    lane = torch.cat([ego_lane[:, None], layout.lane.to(dev).expand(b, m)], 1)
+    y = lane.to(torch.float32) * road.lane_width_m
+
+    sty = _styles(key, style, b, m, dev)
+    table = lambda attr: torch.tensor([getattr(s, attr) for s in STYLES], device=dev)[sty]  # noqa: E731
+    v0 = (1.0 + table("speed_violation").float()) * V_MAX_MPS
+    v0[:, 0] = V_MAX_MPS
     offsets = torch.tensor(ADVERSARIAL_TRIGGER_OFFSETS_M, device=dev)
     zeros_b = torch.zeros(b, n, dtype=torch.bool, device=dev)
     return WorldState(
@@ -153,7 +167,7 @@ def spawn(
         s0=table("desired_headway_m").float(),
         lane_change=table("lane_change").bool(),
         adversarial_prob=table("adversarial_prob").float(),
-        intent=intent,
+        intent=_intents(road, layout, key, b, m, dev),
         trigger_offset=offsets[rng.randint(key(S_OFFSET), len(offsets), n)],
         trigger_used=zeros_b.clone(),
         forced=zeros_b.clone(),

@@ -202,6 +202,19 @@ def _deciders(s: WorldState, road: Road):
     return idx, decide, lane, intent, on_ramp_merge
 
 
+def _write_targets(s: WorldState, flat: torch.Tensor, sel: torch.Tensor | None, target: torch.Tensor) -> None:
+    """s.target_lane at the flat (env * N + vehicle) indices `flat` (E,) becomes `target` (E,); static form
+    (sel (E,) bool): only where sel (padding slots repeat index N - 1 and write to a scratch element past
+    the end instead)."""
+    if sel is None:
+        s.target_lane.view(-1).index_copy_(0, flat, target)
+        return
+    dest = torch.where(sel, flat, s.target_lane.numel())
+    out = torch.cat([s.target_lane.view(-1), s.target_lane.new_zeros(1)])
+    out.index_copy_(0, dest, target)  # the padding slots' values land in the scratch element
+    s.target_lane.view(-1).copy_(out[:-1])
+
+
 def mobil_lane_changes(s: WorldState, road: Road, tables: LaneTables, nb: Neighbours, accel: torch.Tensor,
                        static: bool = False) -> None:
     """MOBIL decisions (incentive + safety) of the SVs due to decide this step; mandatory merge/exit first.
@@ -257,13 +270,6 @@ def mobil_lane_changes(s: WorldState, road: Road, tables: LaneTables, nb: Neighb
     left, right = gain[:m], gain[m:]
     best = torch.where(right > left, toc[m:], toc[:m])  # ties go left, as MOBIL prefers overtaking lanes
     change = torch.maximum(left, right) > -math.inf
-    if sel is None:
-        s.target_lane.view(-1).index_copy_(0, flat1, torch.where(change, best, lane1))
-    else:
-        # padding slots repeat index N - 1: they write to a scratch element past the end instead
-        dest = torch.where(sel, flat1, b_envs * n)
-        out = torch.cat([s.target_lane.view(-1), s.target_lane.new_zeros(1)])
-        out.index_copy_(0, dest, torch.where(change & sel, best, lane1))
-        s.target_lane.view(-1).copy_(out[:-1])
+    _write_targets(s, flat1, sel, torch.where(change, best, lane1))
 
 

@@ -78,8 +78,13 @@ def _pareto_check(what: str, points: dict[str, tuple[float, ...] | None], descri
 
 
 def claims(results: T.Results) -> list[Claim]:
-    out = []
+    """The paper's claims, each checked on the study's results."""
+    return [_collision_free_claim(results), _pareto_claim(results), _exit_success_claim(results),
+            _ablation_claim(results)]
 
+
+def _collision_free_claim(results: T.Results) -> Claim:
+    """Table 5's collision-free training of MoE-RM-SRL, per scene."""
     c = Claim("collision_free_training", "MoE-RM-SRL trains without collisions (Table 5: T_c = 1.000 in all six "
               "scenes).", f"T_c of MoE-RM-SRL is at least {COLLISION_FREE} (prints as 1.000) in each scene.")
     for scene in TABLE5_SCENES:
@@ -91,8 +96,11 @@ def claims(results: T.Results) -> list[Claim]:
         else:
             c.checks.append(Check(label, t["T_c"] >= COLLISION_FREE,
                                   f"T_c {t['T_c']:.4f} ({t['collisions']} collision(s) in {t['episodes']} episodes)"))
-    out.append(c)
+    return c
 
+
+def _pareto_claim(results: T.Results) -> Claim:
+    """MoE-RM-SRL on the Pareto front: deployment per Group 1 level, training per Table 5 scene."""
     c = Claim("pareto", "MoE-RM-SRL dominates the Pareto front: in deployment it occupies the upper right (speed, "
               "C_r) at every traffic level, and in training it combines collision-free training with a fast reward "
               "rise.", "MoE-RM-SRL is not Pareto-dominated by any baseline in (average speed, C_r) at each Group 1 "
@@ -114,8 +122,11 @@ def claims(results: T.Results) -> list[Claim]:
             pts[METHOD_LABELS[m]] = (t["T_c"], -t["rise_time"]) if ok else None
         c.checks.append(_pareto_check(f"training, {SCENES[scene].label}", pts,
                                       lambda p: f"T_c {p[0]:.3f}, rise {-p[1]:,.0f} steps"))
-    out.append(c)
+    return c
 
+
+def _exit_success_claim(results: T.Results) -> Claim:
+    """MoE-RM-SRL's success on (adversarial) exiting, against every baseline."""
     c = Claim("exit_success", "MoE-RM-SRL keeps high success on exiting (Table 5: R_s 80.2%, adversarial 81.5%, "
               "the best of all methods).", f"MoE-RM-SRL's R_s on exiting is at least {HIGH_SUCCESS:.0%} and no "
               "baseline's is higher, in normal and adversarial exiting.")
@@ -140,8 +151,11 @@ def claims(results: T.Results) -> list[Claim]:
         else:
             detail += "; no baseline result to compare with"
         c.checks.append(Check(label, ok, detail))
-    out.append(c)
+    return c
 
+
+def _ablation_claim(results: T.Results) -> Claim:
+    """Table 6: the full model Pareto-dominates each ablated variant on adversarial two-lane."""
     c = Claim("ablation", "Each ablated part matters (Table 6: without mapping, MoE or RM, deployment C_r and R_r "
               "drop on adversarial two-lane).", "The full MoE-RM-SRL is at least as good as the variant in both C_r "
               "and R_r and better in one (it Pareto-dominates the variant in deployment).")
@@ -159,8 +173,7 @@ def claims(results: T.Results) -> list[Claim]:
         c.checks.append(Check(label, dominates((fd["C_r"], fd["R_r"]), (vd["C_r"], vd["R_r"])),
                               f"full C_r {fd['C_r']:.1%}, R_r {fd['R_r']:.1f}; {label} C_r {vd['C_r']:.1%}, "
                               f"R_r {vd['R_r']:.1f}"))
-    out.append(c)
-    return out
+    return c
 
 
 # --------------------------------------------------------------------------------------------- the report

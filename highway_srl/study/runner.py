@@ -315,37 +315,11 @@ def reproduce(budget: str, out: str | Path, jobs: int | None = None, executor: s
     Returns the final study.json content. `work` runs one job (run_job; tests pass stand-ins).
     progress: a live bar over the pending jobs with an ETA (the CLI's; job lines are then written above it).
     """
-    from dataclasses import replace
-
     from highway_srl.study.jobs import default_jobs
 
-    b = get_budget(budget)
-    if seeds is not None:
-        if not seeds or len(set(seeds)) != len(seeds) or any(s < 0 for s in seeds):
-            raise ValueError(f"--seeds must be distinct non-negative integers, got {','.join(map(str, seeds))}")
-        b = replace(b, seeds=tuple(seeds))
-    if profiles is not None:  # like the seeds, part of the budget's settings: a folder never mixes sets
-        from highway_srl.rules import PROFILES
-
-        unknown = [p for p in profiles if p not in PROFILES]
-        if not profiles or unknown or len(set(profiles)) != len(profiles) or profiles[0] != "paper":
-            raise ValueError(f"--profiles takes distinct names of {', '.join(PROFILES)}, paper first (the "
-                             f"reproduction), got {','.join(profiles)}")
-        b = replace(b, profiles=tuple(profiles))
-    if executor not in EXECUTORS:
-        raise ValueError(f"unknown executor {executor!r}; choose one of {', '.join(EXECUTORS)}")
-    if address and executor != "ray":
-        raise ValueError("--address is for --executor ray")
-    if device not in ("cpu", "cuda") and not device.startswith("cuda:"):
-        raise ValueError(f"unknown device {device!r}; choose cpu or cuda")
+    b = _budget_with(get_budget(budget), seeds, profiles)
     workers = jobs if jobs is not None else default_jobs()
-    if workers < 1:
-        raise ValueError(f"--jobs must be a positive integer, got {workers}")
-    if executor == "ray":
-        try:
-            import ray  # noqa: F401
-        except ImportError:
-            raise ValueError("the ray executor needs Ray: pip install 'highway-srl[ray]'") from None
+    _check_run_options(executor, address, device, workers)
     all_jobs = study_jobs(b, methods, scenes)
     out = Path(out)
     state = open_study(out, b)
@@ -360,6 +334,70 @@ def reproduce(budget: str, out: str | Path, jobs: int | None = None, executor: s
     state["invocations"].append(invocation)
     t0 = time.perf_counter()
 
+    pending = _pending_jobs(all_jobs, out, state, invocation)
+    write_json(out / STUDY_FILE, state)
+    unavailable = [j for j in all_jobs if state["jobs"][j.id]["status"] == "unavailable"]
+    log(f"study {b.name} in {out}: {len(all_jobs)} jobs, {invocation['skipped_done']} done already, "
+        f"{len(pending)} to run, {len(unavailable)} unavailable (method not registered yet)"
+        + (f"; {executor} executor, {workers} at a time (progress: {out}/runs/SCENE/VARIANT/scalars.csv)"
+           if pending else ""))
+    _run_pending(pending, out, state, invocation, t0, executor, address, device, workers, work, log, progress)
+    counts: dict[str, int] = {}
+    for job in all_jobs:
+        counts[state["jobs"][job.id]["status"]] = counts.get(state["jobs"][job.id]["status"], 0) + 1
+    log(f"jobs: {', '.join(f'{n} {s}' for s, n in sorted(counts.items()))}"
+        + ("; run the same command again to retry the others" if set(counts) - {"done"} else ""))
+    if report:
+        from highway_srl.study.report import write_report
+
+        t1 = time.perf_counter()
+        path = write_report(out)
+        invocation["report_s"] = round(time.perf_counter() - t1, 2)
+        invocation["wall_s"] = round(time.perf_counter() - t0, 2)
+        write_json(out / STUDY_FILE, state)
+        log(f"report: {path}")
+    return state
+
+
+def _budget_with(b: Budget, seeds: tuple[int, ...] | None, profiles: tuple[str, ...] | None) -> Budget:
+    """The budget with reproduce's --seeds / --profiles, checked (ValueError names the bad value)."""
+    from dataclasses import replace
+
+    if seeds is not None:
+        if not seeds or len(set(seeds)) != len(seeds) or any(s < 0 for s in seeds):
+            raise ValueError(f"--seeds must be distinct non-negative integers, got {','.join(map(str, seeds))}")
+        b = replace(b, seeds=tuple(seeds))
+    if profiles is not None:  # like the seeds, part of the budget's settings: a folder never mixes sets
+        from highway_srl.rules import PROFILES
+
+        unknown = [p for p in profiles if p not in PROFILES]
+        if not profiles or unknown or len(set(profiles)) != len(profiles) or profiles[0] != "paper":
+            raise ValueError(f"--profiles takes distinct names of {', '.join(PROFILES)}, paper first (the "
+                             f"reproduction), got {','.join(profiles)}")
+        b = replace(b, profiles=tuple(profiles))
+    return b
+
+
+def _check_run_options(executor: str, address: str | None, device: str, workers: int) -> None:
+    """ValueError for an unknown executor or device, --address without Ray, --jobs < 1, or Ray missing."""
+    if executor not in EXECUTORS:
+        raise ValueError(f"unknown executor {executor!r}; choose one of {', '.join(EXECUTORS)}")
+    if address and executor != "ray":
+        raise ValueError("--address is for --executor ray")
+    if device not in ("cpu", "cuda") and not device.startswith("cuda:"):
+        raise ValueError(f"unknown device {device!r}; choose cpu or cuda")
+    if workers < 1:
+        raise ValueError(f"--jobs must be a positive integer, got {workers}")
+    if executor == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            raise ValueError("the ray executor needs Ray: pip install 'highway-srl[ray]'") from None
+
+
+def _pending_jobs(all_jobs: list[Job], out: Path, state: dict, invocation: dict) -> list[Job]:
+    """The jobs to run; marks each job's entry in state done (its files are there), unavailable (its method
+    is not registered) or pending, and counts the done ones in the invocation."""
     pending = []
     for job in all_jobs:
         entry = state["jobs"].setdefault(job.id, {})
@@ -376,12 +414,13 @@ def reproduce(budget: str, out: str | Path, jobs: int | None = None, executor: s
             continue
         entry.update(status="pending", message=None)
         pending.append(job)
-    write_json(out / STUDY_FILE, state)
-    unavailable = [j for j in all_jobs if state["jobs"][j.id]["status"] == "unavailable"]
-    log(f"study {b.name} in {out}: {len(all_jobs)} jobs, {invocation['skipped_done']} done already, "
-        f"{len(pending)} to run, {len(unavailable)} unavailable (method not registered yet)"
-        + (f"; {executor} executor, {workers} at a time (progress: {out}/runs/SCENE/VARIANT/scalars.csv)"
-           if pending else ""))
+    return pending
+
+
+def _run_pending(pending: list[Job], out: Path, state: dict, invocation: dict, t0: float, executor: str,
+                 address: str | None, device: str, workers: int, work: Work, log: Callable[[str], None],
+                 progress: bool) -> None:
+    """Run the pending jobs on the executor; study.json is rewritten after each result and at the end."""
     counter = {"n": 0}
     bar = StudyProgress(out, pending, enabled=progress)
     if bar.bar is not None:
@@ -410,21 +449,6 @@ def reproduce(budget: str, out: str | Path, jobs: int | None = None, executor: s
         invocation["finished"] = now()
         invocation["wall_s"] = round(time.perf_counter() - t0, 2)
         write_json(out / STUDY_FILE, state)
-    counts: dict[str, int] = {}
-    for job in all_jobs:
-        counts[state["jobs"][job.id]["status"]] = counts.get(state["jobs"][job.id]["status"], 0) + 1
-    log(f"jobs: {', '.join(f'{n} {s}' for s, n in sorted(counts.items()))}"
-        + ("; run the same command again to retry the others" if set(counts) - {"done"} else ""))
-    if report:
-        from highway_srl.study.report import write_report
-
-        t1 = time.perf_counter()
-        path = write_report(out)
-        invocation["report_s"] = round(time.perf_counter() - t1, 2)
-        invocation["wall_s"] = round(time.perf_counter() - t0, 2)
-        write_json(out / STUDY_FILE, state)
-        log(f"report: {path}")
-    return state
 
 
 def _from_job_file(out: Path, job: Job) -> dict:

@@ -473,46 +473,52 @@ def training(results: Results) -> Table:
 CURVE_BINS = 20
 
 
+def _curve_rows(scene: str, m: str, res: Result) -> list[dict]:
+    """One finished job's training curve: CURVE_BINS rows of (return, cumulative collisions) over its seeds."""
+    import numpy as np
+
+    episodes = res.episodes()
+    steps = res.job.steps
+    edges = np.linspace(0, steps, CURVE_BINS + 1)
+    seeds = sorted({e["seed"] for e in episodes}) or list(res.job.seeds)
+    ret = np.full((len(seeds), CURVE_BINS), np.nan)
+    col = np.zeros((len(seeds), CURVE_BINS))
+    for i, seed in enumerate(seeds):
+        eps = [e for e in episodes if e["seed"] == seed]
+        at = np.array([e["step"] for e in eps], dtype=float)
+        r = np.array([e["return"] for e in eps], dtype=float)
+        c = np.array([bool(e["collision"]) for e in eps], dtype=float)
+        idx = np.clip(np.searchsorted(edges, at, side="left") - 1, 0, CURVE_BINS - 1)
+        for b in range(CURVE_BINS):
+            sel = idx == b
+            if sel.any():
+                ret[i, b] = r[sel].mean()
+            col[i, b] = c[idx <= b].sum()
+    scene_rows = []
+    for b in range(CURVE_BINS):
+        have = ret[:, b][~np.isnan(ret[:, b])]
+        row = {"scene": SCENES[scene].label, "scene_key": scene, "method": METHOD_LABELS[m], "method_key": m,
+               "step": float(edges[b + 1]), "seeds": len(seeds), "seeds_with_episodes": int(have.size),
+               "return_mean": float(have.mean()) if have.size else None,
+               "return_sd": float(have.std(ddof=1)) if have.size >= 2 else None,
+               "collisions_mean": float(col[:, b].mean()),
+               "collisions_sd": float(col[:, b].std(ddof=1)) if len(seeds) >= 2 else None}
+        scene_rows.append(row)
+    return scene_rows
+
+
 def training_curves(results: Results) -> tuple[Table, dict]:
     """Return and cumulative collisions against env steps, per scene and method: mean and sd over seeds.
 
     Returns the CSV/Markdown table and {scene: {method label: rows}} for the figures.
     """
-    import numpy as np
-
     rows, series = [], {}
     for scene in SCENES:
         for m in METHOD_LABELS:
             res = results.get(m, scene)
             if res is None or not res.done:
                 continue
-            episodes = res.episodes()
-            steps = res.job.steps
-            edges = np.linspace(0, steps, CURVE_BINS + 1)
-            seeds = sorted({e["seed"] for e in episodes}) or list(res.job.seeds)
-            ret = np.full((len(seeds), CURVE_BINS), np.nan)
-            col = np.zeros((len(seeds), CURVE_BINS))
-            for i, seed in enumerate(seeds):
-                eps = [e for e in episodes if e["seed"] == seed]
-                at = np.array([e["step"] for e in eps], dtype=float)
-                r = np.array([e["return"] for e in eps], dtype=float)
-                c = np.array([bool(e["collision"]) for e in eps], dtype=float)
-                idx = np.clip(np.searchsorted(edges, at, side="left") - 1, 0, CURVE_BINS - 1)
-                for b in range(CURVE_BINS):
-                    sel = idx == b
-                    if sel.any():
-                        ret[i, b] = r[sel].mean()
-                    col[i, b] = c[idx <= b].sum()
-            scene_rows = []
-            for b in range(CURVE_BINS):
-                have = ret[:, b][~np.isnan(ret[:, b])]
-                row = {"scene": SCENES[scene].label, "scene_key": scene, "method": METHOD_LABELS[m], "method_key": m,
-                       "step": float(edges[b + 1]), "seeds": len(seeds), "seeds_with_episodes": int(have.size),
-                       "return_mean": float(have.mean()) if have.size else None,
-                       "return_sd": float(have.std(ddof=1)) if have.size >= 2 else None,
-                       "collisions_mean": float(col[:, b].mean()),
-                       "collisions_sd": float(col[:, b].std(ddof=1)) if len(seeds) >= 2 else None}
-                scene_rows.append(row)
+            scene_rows = _curve_rows(scene, m, res)
             rows += scene_rows
             series.setdefault(scene, {})[METHOD_LABELS[m]] = scene_rows
     cols = [Column("scene", "scene"), Column("scene_key", "scene key"), Column("method", "method"),
