@@ -1,5 +1,6 @@
-"""What the one-env foreign-simulator backends (SUMO, highway-env) share: the constructor's episode core,
-reset, and the skeleton of a step. A backend specialises it with its command and frame-reading hooks.
+"""What the one-env foreign-simulator backends (SUMO, highway-env) share: the constructor (the common
+arguments, their checks, the episode core, then the `_open` hook and the first episode), reset, and the
+skeleton of a step. A backend specialises it with its own arguments and its hooks (start, command, read).
 
 A step: accept the commanded ego lane as World does and command the ego; start the adversarial cut-ins
 that fired; advance the foreign simulator and read its frame and collisions (`_simulate`); release the
@@ -21,16 +22,23 @@ class SingleEnvBackend(FrameQueries):
     num_envs = 1
     _ego_gone = False  # the simulator removed the ego (SUMO: the end of its route); the episode is truncated
 
-    def _init_core(self, scenario: str, traffic: str, adversarial: bool, seed: int, style: str | None,
-                   num_vehicles: int | None, max_steps: int = EPISODE_STEPS) -> None:
-        """The episode core and the protocol's attributes; validates the shared arguments."""
+    def __init__(self, scenario: str = "two-lane", traffic: str = "C", adversarial: bool = False, seed: int = 0,
+                 style: str | None = None, num_vehicles: int | None = None, max_steps: int = EPISODE_STEPS) -> None:
+        """The episode core and the protocol's attributes (validates the shared arguments), then the
+        simulator (`_open`) and the first episode. A backend checks its own arguments before calling this."""
         self._core = EpisodeCore(scenario, traffic, adversarial, seed, style, num_vehicles, max_steps)
         self.scenario, self.traffic, self.adversarial = scenario, traffic, bool(adversarial)
         self.road, self.max_steps = self._core.road, max_steps
         self.device = torch.device("cpu")
         self._frame = Frame.empty(self._core.num_vehicles)
+        self._open()
+        self._spawn_episode()
 
     # ------------------------------------------------------------------ hooks
+    def _open(self) -> None:
+        """Start the simulator for self.road (the core exists); called once, by the constructor."""
+        raise NotImplementedError
+
     def _check_open(self) -> None:
         """Raise if the simulator is gone (closed); nothing by default."""
 

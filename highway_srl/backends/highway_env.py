@@ -26,7 +26,7 @@ import numpy as np
 
 from highway_srl.backends.base import SingleEnvBackend
 from highway_srl.backends.episode import Move
-from highway_srl.constants import DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, EPISODE_STEPS, LANE_WIDTH_M, STYLES, VEHICLE_LENGTH_M
+from highway_srl.constants import DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, LANE_WIDTH_M, STYLES, VEHICLE_LENGTH_M
 from highway_srl.scenarios import EXIT_X, MERGE_X, scenario_spec
 from highway_srl.sim.state import EXIT_INTENT, MERGE_INTENT, NO_INTENT
 from highway_srl.sim.traffic import (
@@ -164,34 +164,25 @@ class HighwayEnvBackend(SingleEnvBackend):
     a controller that assumes our ego dynamics asks for.
     """
 
-    def __init__(
-        self,
-        scenario: str = "two-lane",
-        traffic: str = "C",
-        adversarial: bool = False,
-        seed: int = 0,
-        style: str | None = None,
-        num_vehicles: int | None = None,
-        max_steps: int = EPISODE_STEPS,
-        frames_per_step: int = 1,
-        ego_speed_time_constant_s: float = DT_S,
-    ):
+    def __init__(self, *args, frames_per_step: int = 1, ego_speed_time_constant_s: float = DT_S, **kwargs):
+        """args, kwargs: SingleEnvBackend's (scenario, traffic, adversarial, seed, style, num_vehicles, max_steps)."""
         if not isinstance(frames_per_step, int) or frames_per_step < 1:
             raise ValueError(f"frames_per_step must be a positive integer, got {frames_per_step!r}")
-        self._init_core(scenario, traffic, adversarial, seed, style, num_vehicles, max_steps)
+        if not ego_speed_time_constant_s > 0:
+            raise ValueError(f"ego_speed_time_constant_s must be positive, got {ego_speed_time_constant_s!r}")
+        self.frames_per_step = frames_per_step
+        self.ego_speed_gain = 1.0 / ego_speed_time_constant_s
+        super().__init__(*args, **kwargs)
+
+    def _open(self) -> None:
         import highway_env  # noqa: F401 - registers the environments; ImportError names the missing extra
 
         from highway_env.vehicle.behavior import IDMVehicle
         from highway_env.vehicle.controller import ControlledVehicle
 
         self._IDMVehicle, self._ControlledVehicle = IDMVehicle, ControlledVehicle
-        self.frames_per_step = frames_per_step
-        if not ego_speed_time_constant_s > 0:
-            raise ValueError(f"ego_speed_time_constant_s must be positive, got {ego_speed_time_constant_s!r}")
-        self.ego_speed_gain = 1.0 / ego_speed_time_constant_s
-        self.env = _env_class(scenario)(config=env_config(scenario, max_steps, frames_per_step))
+        self.env = _env_class(self.scenario)(config=env_config(self.scenario, self.max_steps, self.frames_per_step))
         self._vehicles: list = []
-        self._spawn_episode()
 
     # ------------------------------------------------------------------ road
     def _build_lane_table(self) -> None:

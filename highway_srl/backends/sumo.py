@@ -25,14 +25,13 @@ from highway_srl.constants import (
     DT_S,
     EGO_ACCEL_MAX_MPS2,
     EGO_BRAKE_MAX_MPS2,
-    EPISODE_STEPS,
     STYLES,
     V_MAX_MPS,
     VEHICLE_LENGTH_M,
     VEHICLE_WIDTH_M,
 )
 from highway_srl.backends.base import SingleEnvBackend
-from highway_srl.backends.episode import FAR_M, Frame, Move
+from highway_srl.backends.episode import FAR_M, Move
 from highway_srl.backends.sumo_networks import EdgeSpec, edges_of, links_of, network_path, sumo_binary
 from highway_srl.sim.dynamics import HEADING_MAX_RAD
 from highway_srl.sim.snapshot import Snapshot
@@ -123,38 +122,31 @@ class SumoBackend(SingleEnvBackend):
     first) or "traci" (a sumo process per backend over a socket; several per process, about 30x slower).
     """
 
-    def __init__(
-        self,
-        scenario: str = "two-lane",
-        traffic: str = "C",
-        adversarial: bool = False,
-        seed: int = 0,
-        style: str | None = None,
-        num_vehicles: int | None = None,
-        max_steps: int = EPISODE_STEPS,
-        api: str = "libsumo",
-    ):
+    def __init__(self, *args, api: str = "libsumo", **kwargs):
+        """args, kwargs: SingleEnvBackend's (scenario, traffic, adversarial, seed, style, num_vehicles, max_steps)."""
         if api not in ("libsumo", "traci"):
             raise ValueError(f"unknown SUMO api {api!r}; choose libsumo or traci")
-        self._init_core(scenario, traffic, adversarial, seed, style, num_vehicles, max_steps)
+        self._api_name = api
+        super().__init__(*args, **kwargs)
+
+    # ------------------------------------------------------------------ process
+    def _open(self) -> None:
+        scenario = self.scenario
         self._edges: dict[str, EdgeSpec] = {e.id: e for e in edges_of(scenario)}
         self._mainline_end = next(e.id for e in edges_of(scenario) if e.first_lane == 0 and e.x_to == max(
             f.x_to for f in edges_of(scenario) if f.first_lane == 0))
-        self._api_name = api
         self._tmp = tempfile.TemporaryDirectory(prefix="highway-srl-sumo-")
         additional = Path(self._tmp.name) / "types.add.xml"
         additional.write_text(_additional_xml(scenario))
-        self._options = sumo_options(network_path(scenario), additional, seed)
-        self._api = self._start(api)
+        self._options = sumo_options(network_path(scenario), additional, self._core.seed)
+        self._api = self._start(self._api_name)
         self._closed = False
         n = self._core.num_vehicles
         self._ids: list[str | None] = [None] * n
         self._generation = 0
         self._ego_gone = False
         self._ego_dest = ""
-        self._spawn_episode()
 
-    # ------------------------------------------------------------------ process
     def _start(self, api: str):
         global _LIBSUMO_OWNER
         if api == "libsumo":
