@@ -65,33 +65,49 @@ def cap_rate_axis(ax, top: float) -> None:
         artist.set_clip_on(False)
 
 
+def _scatter(ax, table: T.Table, x: str, y: str, y_scale: float, marker_key: str, markers: dict,
+             colours: dict) -> tuple[set, set]:
+    """One point per row with both values: (row[x], y_scale * row[y]), coloured by method, marked by
+    row[marker_key]. Returns the method labels and the marker keys drawn."""
+    methods, keys = set(), set()
+    for row in table.rows:
+        if not (_ok(row[x]) and _ok(row[y])):
+            continue
+        ax.scatter(row[x], y_scale * row[y], color=colours.get(row["method"], "grey"),
+                   marker=markers.get(row[marker_key], "o"), edgecolor="black", linewidth=0.4, alpha=0.85,
+                   **_emphasis(row["method_key"]))
+        methods.add(row["method"])
+        keys.add(row[marker_key])
+    return methods, keys
+
+
+def _finish(plt, fig, ax, top: float, title: str, plotted: bool, folder: Path, name: str) -> list[Path]:
+    """A Pareto figure's rate axis capped at `top`, title and grid (a note when nothing was plotted);
+    saved as NAME.png / NAME.svg in folder and closed."""
+    cap_rate_axis(ax, top)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    if not plotted:
+        ax.text(0.5, 0.5, "no finished runs yet", transform=ax.transAxes, ha="center")
+    fig.tight_layout(rect=(0, 0, 0.8, 1))  # the right fifth holds the legends
+    paths = _save(fig, folder, name)
+    plt.close(fig)
+    return paths
+
+
 def deployment_pareto(results: T.Results, folder: Path) -> tuple[list[Path], T.Table]:
     plt = _pyplot()
     table = T.group1_deployment(results)
     table.name, table.title = "deployment_pareto", "Deployment Pareto figure data: speed against C_r, levels A-F"
     colours = method_colours()
     fig, ax = plt.subplots(figsize=(8.4, 4.8))
-    plotted_methods, plotted_levels = set(), set()
-    for row in table.rows:
-        if not (_ok(row["avg_speed"]) and _ok(row["C_r"])):
-            continue
-        ax.scatter(row["avg_speed"], 100 * row["C_r"], color=colours.get(row["method"], "grey"),
-                   marker=LEVEL_MARKERS.get(row["level"], "o"), edgecolor="black", linewidth=0.4, alpha=0.85,
-                   **_emphasis(row["method_key"]))
-        plotted_methods.add(row["method"])
-        plotted_levels.add(row["level"])
+    plotted_methods, plotted_levels = _scatter(ax, table, "avg_speed", "C_r", 100.0, "level", LEVEL_MARKERS, colours)
     _legends(ax, plt, colours, plotted_methods,
              {lv: LEVEL_MARKERS[lv] for lv in TRAFFIC_LEVELS if lv in plotted_levels}, "level")
     ax.set_xlabel("average speed (m/s)")
     ax.set_ylabel("collision-free rate C_r (%)")
-    cap_rate_axis(ax, 100.0)
-    ax.set_title("Deployment on two-lane, trained at level C (upper right is better)")
-    ax.grid(alpha=0.3)
-    if not plotted_methods:
-        ax.text(0.5, 0.5, "no finished runs yet", transform=ax.transAxes, ha="center")
-    fig.tight_layout(rect=(0, 0, 0.8, 1))  # the right fifth holds the legends
-    paths = _save(fig, folder, "deployment_pareto")
-    plt.close(fig)
+    paths = _finish(plt, fig, ax, 100.0, "Deployment on two-lane, trained at level C (upper right is better)",
+                    bool(plotted_methods), folder, "deployment_pareto")
     return paths + table.write(folder), table
 
 
@@ -100,28 +116,14 @@ def training_pareto(results: T.Results, folder: Path) -> tuple[list[Path], T.Tab
     table = T.training(results)
     colours = method_colours()
     fig, ax = plt.subplots(figsize=(8.4, 4.8))
-    plotted_methods, plotted_scenes = set(), set()
-    for row in table.rows:
-        if not (_ok(row["rise_time"]) and _ok(row["T_c"])):
-            continue
-        ax.scatter(row["rise_time"], row["T_c"], color=colours.get(row["method"], "grey"),
-                   marker=SCENE_MARKERS.get(row["scene_key"], "o"), edgecolor="black", linewidth=0.4, alpha=0.85,
-                   **_emphasis(row["method_key"]))
-        plotted_methods.add(row["method"])
-        plotted_scenes.add(row["scene_key"])
+    plotted_methods, plotted_scenes = _scatter(ax, table, "rise_time", "T_c", 1.0, "scene_key", SCENE_MARKERS, colours)
     _legends(ax, plt, colours, plotted_methods,
              {SCENES[s].label: SCENE_MARKERS[s] for s in SCENES if s in plotted_scenes}, "scene")
     ax.invert_xaxis()
     ax.set_xlabel("rise time of the episode return (env steps; reversed: faster to the right)")
     ax.set_ylabel("training collision-free rate T_c")
-    cap_rate_axis(ax, 1.0)
-    ax.set_title("Training safety against learning speed (upper right is better)")
-    ax.grid(alpha=0.3)
-    if not plotted_methods:
-        ax.text(0.5, 0.5, "no finished runs yet", transform=ax.transAxes, ha="center")
-    fig.tight_layout(rect=(0, 0, 0.8, 1))
-    paths = _save(fig, folder, "training_pareto")
-    plt.close(fig)
+    paths = _finish(plt, fig, ax, 1.0, "Training safety against learning speed (upper right is better)",
+                    bool(plotted_methods), folder, "training_pareto")
     return paths + table.write(folder), table
 
 

@@ -273,22 +273,27 @@ def group1_deployment(results: Results) -> Table:
                         "Student t for speed)."], display=display)
 
 
-def _runs_rows(results: Results, scenes, methods) -> list[dict]:
-    rows = []
+def _runs(results: Results, scenes, methods):
+    """(scene, method key, Result) of every job the results hold, scene by scene, in the methods' order."""
     for scene in scenes:
         for m in methods:
             res = results.get(m, scene)
-            if res is None:
-                continue
-            d = (res.deploy(TRAIN_TRAFFIC) if res.done else None) or {}
-            t = (res.train() if res.done else None) or {}
-            row = {"scene": SCENES[scene].label, "scene_key": scene, "method": METHOD_LABELS[m], "method_key": m,
-                   "status": _status(res), "runs": d.get("runs"), "episodes_per_run": d.get("episodes_per_run"),
-                   "T_c": t.get("T_c"), "T_c_sd": t.get("T_c_sd")}
-            for k in ("C_r", "collision_rate", "avg_speed", "R_r", "R_s"):
-                row[k], row[f"{k}_sd"] = d.get(k), d.get(f"{k}_sd")
-            row["adv_triggers"], row["adv_cut_ins"] = d.get("adv_triggers"), d.get("adv_cut_ins")
-            rows.append(row)
+            if res is not None:
+                yield scene, m, res
+
+
+def _runs_rows(results: Results, scenes, methods) -> list[dict]:
+    rows = []
+    for scene, m, res in _runs(results, scenes, methods):
+        d = (res.deploy(TRAIN_TRAFFIC) if res.done else None) or {}
+        t = (res.train() if res.done else None) or {}
+        row = {"scene": SCENES[scene].label, "scene_key": scene, "method": METHOD_LABELS[m], "method_key": m,
+               "status": _status(res), "runs": d.get("runs"), "episodes_per_run": d.get("episodes_per_run"),
+               "T_c": t.get("T_c"), "T_c_sd": t.get("T_c_sd")}
+        for k in ("C_r", "collision_rate", "avg_speed", "R_r", "R_s"):
+            row[k], row[f"{k}_sd"] = d.get(k), d.get(f"{k}_sd")
+        row["adv_triggers"], row["adv_cut_ins"] = d.get("adv_triggers"), d.get("adv_cut_ins")
+        rows.append(row)
     return rows
 
 
@@ -441,18 +446,14 @@ def table6(results: Results) -> Table:
 def training(results: Results) -> Table:
     """T_c, rise time and T_r of every non-ablation run: the training Pareto figure's data."""
     rows = []
-    for scene in SCENES:
-        for m in METHOD_LABELS:
-            res = results.get(m, scene)
-            if res is None:
-                continue
-            t = (res.train() if res.done else None) or {}
-            rows.append({"scene": SCENES[scene].label, "scene_key": scene, "method": METHOD_LABELS[m],
-                         "method_key": m, "status": _status(res), "seeds": t.get("seeds"),
-                         "episodes": t.get("episodes"), "collisions": t.get("collisions"),
-                         "T_c": t.get("T_c"), "T_c_sd": t.get("T_c_sd"), "rise_time": t.get("rise_time"),
-                         "rise_time_sd": t.get("rise_time_sd"), "T_r": t.get("T_r"), "T_r_sd": t.get("T_r_sd"),
-                         "T_r_rm": t.get("T_r_rm"), "T_r_rm_sd": t.get("T_r_rm_sd")})
+    for scene, m, res in _runs(results, SCENES, METHOD_LABELS):
+        t = (res.train() if res.done else None) or {}
+        rows.append({"scene": SCENES[scene].label, "scene_key": scene, "method": METHOD_LABELS[m],
+                     "method_key": m, "status": _status(res), "seeds": t.get("seeds"),
+                     "episodes": t.get("episodes"), "collisions": t.get("collisions"),
+                     "T_c": t.get("T_c"), "T_c_sd": t.get("T_c_sd"), "rise_time": t.get("rise_time"),
+                     "rise_time_sd": t.get("rise_time_sd"), "T_r": t.get("T_r"), "T_r_sd": t.get("T_r_sd"),
+                     "T_r_rm": t.get("T_r_rm"), "T_r_rm_sd": t.get("T_r_rm_sd")})
     cols = [Column("scene", "scene"), Column("scene_key", "scene key"), Column("method", "method"),
             Column("method_key", "method key"), Column("status", "status"), Column("seeds", "seeds", "int"),
             Column("episodes", "training episodes", "int"), Column("collisions", "training collisions", "int"),
@@ -513,11 +514,8 @@ def training_curves(results: Results) -> tuple[Table, dict]:
     Returns the CSV/Markdown table and {scene: {method label: rows}} for the figures.
     """
     rows, series = [], {}
-    for scene in SCENES:
-        for m in METHOD_LABELS:
-            res = results.get(m, scene)
-            if res is None or not res.done:
-                continue
+    for scene, m, res in _runs(results, SCENES, METHOD_LABELS):
+        if res.done:
             scene_rows = _curve_rows(scene, m, res)
             rows += scene_rows
             series.setdefault(scene, {})[METHOD_LABELS[m]] = scene_rows

@@ -9,12 +9,8 @@ sys.path.insert(0, str(Path(__file__).parents[1] / "rules"))
 
 
 @pytest.fixture(autouse=True)
-def _one_thread():
-    # tiny networks on a busy 2-core machine: a second intra-op thread only adds OpenMP waits (~10x slower)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+def _one_thread(one_thread):
+    """Tiny networks: every test here runs with one thread (tests/conftest.py)."""
 
 
 @pytest.fixture

@@ -17,16 +17,6 @@ from highway_srl.agents.replay import ExpertReplay
 SMALL = DQNConfig(hidden=32, batch_size=16)
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    # These networks are tiny: a second thread only adds synchronisation, and on a busy 2-core
-    # machine an OpenMP barrier waiting for a descheduled thread makes each matmul ~10x slower.
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 def _batch(mask: torch.Tensor, n: int, obs_dim: int, gen: torch.Generator, reward_scale: float = 1.0) -> dict:
     """A random batch (K, n, ...) whose actions lie inside each member's set (mask (K, out))."""
     k = mask.shape[0]

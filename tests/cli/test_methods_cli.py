@@ -9,13 +9,8 @@ import torch
 from highway_srl.cli import main
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    # tiny networks on a busy 2-core machine: a second intra-op thread only adds OpenMP waits
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+# tiny networks: one thread for every test here (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def test_unknown_method_is_a_one_line_cli_error(tmp_path, capsys):

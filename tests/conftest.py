@@ -1,0 +1,20 @@
+"""Fixtures shared by every test folder."""
+
+import pytest
+import torch
+
+
+@pytest.fixture
+def one_thread():
+    """The test runs with one intra-op thread; the previous setting is restored afterwards.
+
+    Used where it matters (autouse in tests/sim, tests/agents, tests/pins, tests/study and
+    tests/cli/test_methods_cli.py): their tensors and networks are small, so a second thread only adds
+    OpenMP waits, and on a machine whose cores are busy with other work a barrier waiting for a descheduled
+    thread makes small ops 10-50x slower.
+    The pins also need it for their numbers (see tests/pins/conftest.py).
+    """
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
