@@ -135,7 +135,8 @@ def train_config(args):
                        steps=args.steps, envs=args.envs, seeds=_seeds(args.seeds), device=args.device,
                        profile=args.profile, adversary=args.adversary,
                        replay_ratio=None if legacy else args.replay_ratio, updates_per_step=args.updates_per_step,
-                       share_transitions=args.share_transitions, dqn=dqn, options=options)
+                       share_transitions=args.share_transitions, dqn=dqn, options=options,
+                       static=getattr(args, "static", None), compile=getattr(args, "compile", False))
 
 
 def _cmd_train(args) -> int:
@@ -310,7 +311,8 @@ def _add_train(sub, scenario_args) -> None:
     p.add_argument("--device", default="cpu")
     p.add_argument("--profile", type=profile_name, default="paper",
                    help="control profile of the rule layer: paper (Eqs. 31-35 as printed, the default) or safe "
-                   "(our additions: abort unsafe changes, brake while changing, change window, straddle, 1 m margin)")
+                   "(our additions: abort unsafe changes, brake while changing, change window, straddle, 1 m margin, "
+                   "SVs turning in)")
     p.add_argument("--adversary", type=adversary_name, default="paper",
                    help="group-3 cut-ins with --adversarial: paper (§4.3 as printed, the default) or mild (ours)")
     rate = p.add_mutually_exclusive_group()
@@ -325,6 +327,12 @@ def _add_train(sub, scenario_args) -> None:
     p.add_argument("--no-mapping", action="store_true", help="ablation: without the ID/rule/action/control mappings")
     p.add_argument("--no-moe", action="store_true", help="ablation: one DQN over A*, no gated experts")
     p.add_argument("--no-rm", action="store_true", help="ablation: reward without the reward machine")
+    p.add_argument("--static", action=argparse.BooleanOptionalAction, default=None,
+                   help="the static-shape, sync-free vector step (masked resets and update rounds); default: on "
+                   "CUDA and with --compile, the compact step on the CPU (faster there)")
+    p.add_argument("--compile", action=argparse.BooleanOptionalAction, default=False,
+                   help="torch.compile the static step's world step and update round (CUDA graphs on CUDA; a C++ "
+                   "compiler on the CPU, minutes of compiling); eager is the reference")
     p.add_argument("--checkpoint-every", type=positive, default=50_000, help="env steps between resume checkpoints")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint, "
                    "with every setting it was started with (config.json); the other options are then ignored")

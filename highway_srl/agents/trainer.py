@@ -97,6 +97,8 @@ def check_config(cfg: TrainConfig) -> None:
     control_profile(cfg.profile)
     if cfg.adversary not in ADVERSARIES:
         raise ValueError(f"unknown adversary {cfg.adversary!r}; choose one of {', '.join(ADVERSARIES)}")
+    if cfg.compile and cfg.static is False:
+        raise ValueError("compile needs the static step (static=False was set)")
     if (cfg.replay_ratio is None) == (cfg.updates_per_step is None):
         raise ValueError("set exactly one of replay_ratio (updates per env step) and updates_per_step (legacy)")
     if cfg.replay_ratio is not None and not (cfg.replay_ratio >= 0 and math.isfinite(cfg.replay_ratio)):

@@ -21,7 +21,7 @@ import torch
 
 from highway_srl.agents.checkpoint import CheckpointError, load_checkpoint, policy_tensors, save_checkpoint, write_atomic
 from highway_srl.agents.dqn import UpdateLog
-from highway_srl.agents.trainer import OPTIONAL_KEYS, Episode, Trainer, TrainConfig
+from highway_srl.agents.trainer import OPTIONAL_KEYS, Episode, Trainer, TrainConfig, check_config
 from highway_srl.experiments.runs import (
     append_jsonl, check_output_folder, holds_other_files, lock_run, progress_bar, provenance, read_json, read_jsonl,
     run_config, truncate_jsonl, write_json,
@@ -251,6 +251,7 @@ def train_run(cfg: TrainConfig | None, out: str | Path, resume: bool = False, ch
         except (TypeError, ValueError) as err:
             raise ValueError(f"{out / 'config.json'} is damaged ({str(err).splitlines()[0]})") from None
         checkpoint_every = int(saved.get("checkpoint_every", checkpoint_every))
+    check_config(cfg)  # a setting no run can have is refused before any folder is made
     out.mkdir(parents=True, exist_ok=True)
     with lock_run(out):
         _check_target(out, resume)  # again, under the lock: another process may have finished meanwhile

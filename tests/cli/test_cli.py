@@ -146,3 +146,15 @@ def test_a_runs_config_records_profile_adversary_and_replay_ratio(capsys, tmp_pa
     code, text, _ = run(capsys, "evaluate", str(out), "--episodes", "2", "--json", "--profile", "paper",
                         "--out", str(tmp_path / "f.json"))
     assert code == 0 and json.loads(text)["profile"] == "paper"
+
+
+def test_train_static_is_recorded_and_compile_without_the_static_step_is_a_one_line_error(capsys, tmp_path):
+    out = tmp_path / "run"
+    assert main(["train", "--method", "rl", "--traffic", "A", "--steps", "64", "--envs", "4", "--learning-starts",
+                 "32", "--static", "--quiet", "--out", str(out)]) == 0
+    config = json.loads((out / "config.json").read_text())["config"]
+    assert (config["static"], config["compile"]) == (True, False)
+    capsys.readouterr()
+    code, _, err = run(capsys, "train", "--steps", "64", "--compile", "--no-static", "--out", str(tmp_path / "x"))
+    assert code == 2 and "compile needs the static step" in err and "Traceback" not in err
+    assert not (tmp_path / "x").exists()  # refused before any folder is made
