@@ -102,13 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=positive, default=200)
     p.add_argument("--seeds", type=positive, default=1, help="independent agents trained at once (bench train)")
     p.add_argument("--device", default="cpu")
-    # off by default: compiling takes minutes and pays only over long runs (docs/benchmarks.md)
-    p.add_argument("--compile", action=argparse.BooleanOptionalAction, default=False,
-                   help="the compiled static-shape step (CUDA graphs on CUDA; needs a C++ compiler on CPU); bench "
-                   "train then reports eager and compiled side by side")
-    p.add_argument("--static", action=argparse.BooleanOptionalAction, default=None,
-                   help="bench train: the eager step's form, static (masked, sync-free) or compact (default: "
-                   "static on CUDA, compact on the CPU)")
+    commands.step_form_args(p)
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_bench)
 

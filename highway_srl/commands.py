@@ -301,6 +301,17 @@ def _cmd_play(args) -> int:
     return 0
 
 
+def step_form_args(p) -> None:
+    """--static and --compile of train and bench: the form of the step (off by default on the CPU: compiling
+    takes minutes and pays only over long runs, docs/benchmarks.md)."""
+    p.add_argument("--static", action=argparse.BooleanOptionalAction, default=None,
+                   help="the static-shape, sync-free step (masked resets and update rounds); default: on CUDA and "
+                   "with --compile, the compact step on the CPU (faster there)")
+    p.add_argument("--compile", action=argparse.BooleanOptionalAction, default=False,
+                   help="torch.compile the static step (CUDA graphs on CUDA; a C++ compiler on the CPU, minutes of "
+                   "compiling; eager is the reference); bench train reports eager and compiled side by side")
+
+
 def _add_train(sub, scenario_args) -> None:
     p = sub.add_parser("train", help="train a method; writes a run folder")
     p.add_argument("--method", default="moe-rm-srl")
@@ -327,12 +338,7 @@ def _add_train(sub, scenario_args) -> None:
     p.add_argument("--no-mapping", action="store_true", help="ablation: without the ID/rule/action/control mappings")
     p.add_argument("--no-moe", action="store_true", help="ablation: one DQN over A*, no gated experts")
     p.add_argument("--no-rm", action="store_true", help="ablation: reward without the reward machine")
-    p.add_argument("--static", action=argparse.BooleanOptionalAction, default=None,
-                   help="the static-shape, sync-free vector step (masked resets and update rounds); default: on "
-                   "CUDA and with --compile, the compact step on the CPU (faster there)")
-    p.add_argument("--compile", action=argparse.BooleanOptionalAction, default=False,
-                   help="torch.compile the static step's world step and update round (CUDA graphs on CUDA; a C++ "
-                   "compiler on the CPU, minutes of compiling); eager is the reference")
+    step_form_args(p)
     p.add_argument("--checkpoint-every", type=positive, default=50_000, help="env steps between resume checkpoints")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint, "
                    "with every setting it was started with (config.json); the other options are then ignored")
