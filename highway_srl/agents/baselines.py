@@ -28,7 +28,7 @@ from highway_srl.agents.methods import DEFAULT_PROFILE, Decision, Method
 from highway_srl.agents.moe import grouped_q, seed_of_env
 from highway_srl.agents.rule_based import rule_based_action, rule_based_decision
 from highway_srl.constants import EPISODE_STEPS
-from highway_srl.rules import OBS_NAMES, SafetyLayer, choose_second, scenario_reward
+from highway_srl.rules import OBS_NAMES, SafetyLayer, choose_second, may_use_second, scenario_reward
 from highway_srl.rules.raw import FIVE_ACTIONS, RawSafetyLayer
 from highway_srl.rules.reward_machine import U2, U4
 from highway_srl.rules.safe_actions import LANE_CHANGE
@@ -130,7 +130,7 @@ class SingleDQN(_Options, Method):
 
     def decide(self, learner, step, explore, generator) -> Decision:
         use_second = None
-        if bool(step.two_models.any()):  # multi-lane middle lane: the model whose best action is worth more
+        if may_use_second(step):  # multi-lane middle lane: the model whose best action is worth more
             values = [highest_allowed_value(self.scores(learner, m), self.allowed(m)) for m in (step.primary, step.second)]
             use_second = choose_second(values[0], values[1], step.two_models)
         model = step.select(use_second)
@@ -293,18 +293,21 @@ class LMRL(SingleDQN):
         if self.episode_cost is None or self.episode_cost.shape != cost.shape:
             self.episode_cost = torch.zeros_like(cost)
         self.episode_cost = self.episode_cost.to(cost.device) + cost
-        if not bool(done.any()):
+        static = getattr(trainer, "static", False)
+        if not static and not bool(done.any()):  # the static form computes it anyway: no seed ended, no move
             return
         seed = seed_of_env(cost.shape[0], self.seeds, cost.device)
         ended = done.to(cost.dtype)
         total = torch.zeros(self.seeds, device=cost.device).index_add_(0, seed, self.episode_cost * ended)
         count = torch.zeros(self.seeds, device=cost.device).index_add_(0, seed, ended)
         stepped = dual_update(self.lam.to(cost.device), total / count.clamp(min=1), self.cost_limit, self.lambda_lr)
-        self.lam = torch.where(count > 0, stepped, self.lam.to(cost.device)).cpu()
+        self.lam = torch.where(count > 0, stepped, self.lam.to(cost.device))
+        if not static:  # the compact form keeps λ on the host; the static one on the device (no copy back)
+            self.lam = self.lam.cpu()
         self.episode_cost = torch.where(done, torch.zeros_like(self.episode_cost), self.episode_cost)
 
     def state_dict(self) -> dict[str, torch.Tensor]:
-        state = {"lambda": self.lam.clone()}
+        state = {"lambda": self.lam.cpu().clone()}
         if self.episode_cost is not None:
             state["episode_cost"] = self.episode_cost.clone()
         return state

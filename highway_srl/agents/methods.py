@@ -15,7 +15,7 @@ from highway_srl.agents.dqn import DQNLearner, UpdateStats
 from highway_srl.agents.gating import EXPERT_NAMES, expert_action_mask
 from highway_srl.agents.moe import MoEPolicy, seed_of_env
 from highway_srl.agents.replay import ExpertReplay
-from highway_srl.rules import ACTIONS, SafetyLayer, choose_second, control_profile, scenario_reward
+from highway_srl.rules import ACTIONS, SafetyLayer, choose_second, control_profile, may_use_second, scenario_reward
 
 DEFAULT_PROFILE = "paper"  # the paper's control mapping (Eqs. 31-35 as printed) is the reproduction's default
 
@@ -113,7 +113,7 @@ class MoERMSRL(Method):
 
     def decide(self, learner, step, explore, generator) -> Decision:
         use_second = None
-        if bool(step.two_models.any()):
+        if may_use_second(step):
             v1 = self.policy.value(learner, step.primary.obs, self.gate_mask(step.primary))
             v2 = self.policy.value(learner, step.second.obs, self.gate_mask(step.second))
             use_second = choose_second(v1, v2, step.two_models)

@@ -136,7 +136,8 @@ class Trainer:
     static (config.static; on CUDA and whenever compiled): every reset is a masked select of freshly
     spawned state, and every member the method can train takes a fixed number of update rounds under a mask
     (ceil(replay_ratio x envs): the most one member can be owed), each on its own batch. Nothing in the
-    static step reads the device, apart from the multi-lane model choice and LM-RL's multiplier.
+    static step reads the device (the rule layer and the methods run in their static forms too); its only
+    graph breaks left are the random draws with the generator.
 
     In both, finished episodes wait on the device (FinishedEpisodes) and are read every drain_every vector
     steps (step returns them then) or by drain(); state_dict needs them drained (train drains before each
@@ -158,6 +159,7 @@ class Trainer:
         self.world.static = self.static
         self.method: Method = make_method(cfg.method, cfg.scenario, self.num_seeds, cfg.options, cfg.profile)
         self.layer = self.method.make_layer(self.world.road)
+        self.layer.static = self.static
         self.learner = DQNLearner(
             self.method.num_members, self.method.action_mask(), cfg.dqn, self.device, OBS_DIM, self.method.out_dim,
             generator=torch.Generator(device="cpu").manual_seed(cfg.seeds[0]),

@@ -42,6 +42,7 @@ from highway_srl.rules.pipeline import (
     SafetyStep,
     choose_second,
     control_profile,
+    may_use_second,
 )
 from highway_srl.rules.reward_machine import (
     COLLISION_REWARD,
@@ -79,6 +80,7 @@ __all__ = [
     "near_boundary", "crossing_toward", "rule_mapping", "target_lane_local", "target_speed",
     "OBS_NAMES", "build_observation", "observation_ranges",
     "SafetyLayer", "SafetyStep", "ModelStep", "choose_second", "ControlProfile", "PROFILES", "control_profile",
+    "may_use_second",
     "Estimate", "deployment_step_reward", "deployment_episode_reward", "average_speed",
     "collision_free_rate", "success_rate", "wilson_interval", "mean_interval",
 ]

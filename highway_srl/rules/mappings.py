@@ -317,6 +317,7 @@ def target_lane_local(
     dx3: torch.Tensor,
     dx4: torch.Tensor,
     previous_target: torch.Tensor | None = None,
+    check: bool = True,
 ) -> torch.Tensor:
     """T*_ID of Eqs. 34-35 in the local pair, (B,) long.
 
@@ -328,9 +329,11 @@ def target_lane_local(
     previous_target (B,) long local, optional: the reading "the lateral plan remains unchanged" for
     Faster/Idle/Slower (they keep the previous target instead of resetting it to C_ID), which lets a lane
     change in progress finish; the default (None) is the literal Eq. 34.
+    check: raise ValueError on an index outside ACTIONS (a host read; the static training step skips it).
     """
     action = action.long()
-    _check_actions(action)
+    if check:
+        _check_actions(action)
     c_id = c_id.long()
     other = 1 - c_id
     r3s, r4s, m = r3s.bool(), r4s.bool(), m_l_ego.bool()
@@ -349,10 +352,13 @@ def target_speed(
     dv_accel_mps: float = DV_ACCEL_MPS,
     dv_decel_mps: float = DV_DECEL_MPS,
     v_max_mps: float = V_MAX_MPS,
+    check: bool = True,
 ) -> torch.Tensor:
-    """v̄_EV,x (§3.1): Faster v + Δv_A, Slower v - Δv_D, Idle and LaneChange v; clipped to [0, v_max]; (B,)."""
+    """v̄_EV,x (§3.1): Faster v + Δv_A, Slower v - Δv_D, Idle and LaneChange v; clipped to [0, v_max]; (B,).
+    check: as in target_lane_local."""
     action = action.long()
-    _check_actions(action)
+    if check:
+        _check_actions(action)
     dv = torch.zeros_like(v_mps)
     dv = torch.where(action == FASTER, torch.full_like(dv, dv_accel_mps), dv)
     dv = torch.where(action == SLOWER, torch.full_like(dv, -dv_decel_mps), dv)

@@ -127,12 +127,14 @@ class ModelStep:
 @dataclass
 class SafetyStep:
     """primary: the model to use everywhere; second: model B of a multi-lane ego in the middle lane, valid
-    where two_models (B,) is True (elsewhere it repeats primary); snapshot: the primary's snapshot."""
+    where two_models (B,) is True (elsewhere it repeats primary); snapshot: the primary's snapshot; static:
+    made by a layer in its static form (the second model is always computed)."""
 
     primary: ModelStep
     second: ModelStep
     two_models: torch.Tensor
     snapshot: Snapshot
+    static: bool = False
 
     def select(self, use_second: torch.Tensor | None) -> ModelStep:
         """The per-env chosen model: second where use_second & two_models, else primary."""
@@ -159,6 +161,12 @@ def where_tree(pick: torch.Tensor, a, b):
     return type(a)(**{f.name: where_tree(pick, getattr(a, f.name), getattr(b, f.name)) for f in fields(a)})
 
 
+def may_use_second(step: SafetyStep) -> bool:
+    """Whether a method must weigh step's second model: always in the static form (no host read; the
+    choice is a select), else only where some env has two models (one host read)."""
+    return getattr(step, "static", False) or bool(step.two_models.any())
+
+
 def choose_second(q_primary: torch.Tensor, q_second: torch.Tensor, two_models: torch.Tensor) -> torch.Tensor:
     """§3.3 multi-lane: use model B where there are two models and its Q value is the larger; (B,) bool."""
     return two_models.bool() & (q_second > q_primary)
@@ -175,6 +183,10 @@ class SafetyLayer:
     profiles (without it no lane change completes); abort_unsafe_change: the held change is given up when
     its target turns unsafe; finish_in_window: a lane change is started or held only if it can end before
     the road's change window closes (mappings.change_fits_window).
+
+    static (set by the static training step): the same numbers without host reads: the second model of a
+    multi-lane ego is always computed (a select picks it), the neighbours are always queried afresh for the
+    primary model, and the action indices are not checked (the methods produce valid ones).
     """
 
     def __init__(
@@ -217,6 +229,7 @@ class SafetyLayer:
         self.target_lane: torch.Tensor | None = None  # (B,) long global T*; -1: not yet known
         self._query: tuple[torch.Tensor, torch.Tensor] | None = None
         self.last: SafetyStep | None = None
+        self.static = False
 
     # ------------------------------------------------------------------ episodes
     def reset(self, mask: torch.Tensor | None = None) -> None:
@@ -244,16 +257,16 @@ class SafetyLayer:
         target = torch.where(reachable & lane_exists(road, target, probe.ego_x), target, ego_lane)
         self.target_lane = target
         ids: IdMapping = id_mapping(road, probe.ego_x, ego_lane, target)
-        snap = self._snapshot(world, probe, ids.primary)
+        snap = self._snapshot(world, probe, ids.primary, self.static)
         primary = self._model_step(snap, ids.primary, target)
-        if bool(ids.two_models.any()):
+        if self.static or bool(ids.two_models.any()):  # where two_models is False, second repeats primary
             snap_b = world.neighbours(ids.second.current_lane, ids.second.adjacent_lane)
             second = self._model_step(snap_b, ids.second, target)
         else:
             second = primary
         self._query = (ids.primary.current_lane, ids.primary.adjacent_lane)
         assert primary.obs.shape[0] == batch
-        self.last = SafetyStep(primary, second, ids.two_models, snap)
+        self.last = SafetyStep(primary, second, ids.two_models, snap, self.static)
         return self.last
 
     def _probe_lanes(self, world) -> tuple[torch.Tensor, torch.Tensor]:
@@ -270,7 +283,11 @@ class SafetyLayer:
         raise ValueError("the first observe() needs world.ego_lane (B,) or world.num_envs to size the batch")
 
     @staticmethod
-    def _snapshot(world, probe: Snapshot, lanes: LaneModel) -> Snapshot:
+    def _snapshot(world, probe: Snapshot, lanes: LaneModel, static: bool = False) -> Snapshot:
+        """The neighbours of lanes: the probe's answer when it asked for the same lanes (a host read),
+        a fresh query otherwise and always in the static form (the same answer either way)."""
+        if static:
+            return world.neighbours(lanes.current_lane, lanes.adjacent_lane)
         same = torch.equal(probe.current_lane.long(), lanes.current_lane) and torch.equal(
             probe.adjacent_lane.long(), lanes.adjacent_lane
         )
@@ -354,7 +371,8 @@ class SafetyLayer:
                 still_safe = m.r_star[:, 1] & m.r_star[:, 3]
                 previous = torch.where(still_safe, previous, m.lanes.c_id.long())
         t_local = target_lane_local(
-            action, m.lanes.c_id, m.m_l_ego, m.r_star[:, 2], m.r_star[:, 3], dx3, dx4, previous_target=previous
+            action, m.lanes.c_id, m.m_l_ego, m.r_star[:, 2], m.r_star[:, 3], dx3, dx4, previous_target=previous,
+            check=not self.static,
         )
         lane = m.lanes.base_lane + t_local
         ego_lane = snap.ego_lane.long()
@@ -364,10 +382,10 @@ class SafetyLayer:
             ok &= (lane == ego_lane) | change_fits_window(self.road, ego_lane, lane, snap.ego_x, snap.ego_y, speed_now)
         lane = torch.where(ok, lane, ego_lane)
         self.target_lane = lane
-        speed = target_speed(action, speed_now)
+        speed = target_speed(action, speed_now, check=not self.static)
         # Table 1 allows LaneChange while R*_SV1 = 0 (rows 9, 13), but the lateral move takes ~2.5 s during
         # which the ego is still behind SV1: it changes lanes braking as Slower would (docs/paper-notes.md).
         if self.brake_while_changing:
             brake = (action == LANE_CHANGE) & ~m.r_star[:, 0]
-            speed = torch.where(brake, target_speed(torch.full_like(action, SLOWER), speed_now), speed)
+            speed = torch.where(brake, target_speed(torch.full_like(action, SLOWER), speed_now, check=False), speed)
         return lane, speed

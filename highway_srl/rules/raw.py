@@ -99,6 +99,15 @@ class RawSafetyLayer:
 
     # ------------------------------------------------------------------ state
     @property
+    def static(self) -> bool:
+        """The static form (SafetyLayer.static: no host reads), shared with the mapped layer it scores with."""
+        return self.mapped.static
+
+    @static.setter
+    def static(self, value: bool) -> None:
+        self.mapped.static = value
+
+    @property
     def target_lane(self) -> torch.Tensor | None:
         """(B,) long global target lane of the ego (what the last act() commanded)."""
         return self._target
@@ -172,7 +181,7 @@ class RawSafetyLayer:
             lane_right=torch.where(crossing_allowed(road, ego_lane, right, x), right, ego_lane),
             mapped_r_rm=metric.r_rm,
         )
-        self.last = SafetyStep(step, step, torch.zeros_like(changing), snap)
+        self.last = SafetyStep(step, step, torch.zeros_like(changing), snap, self.static)
         return self.last
 
     def _rules(self, snap, veh) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -197,7 +206,7 @@ class RawSafetyLayer:
         ego_lane = snap.ego_lane.long()
         keep = self._target if self.hold_lane_change else ego_lane
         if self.five_actions:
-            if action.numel() and (int(action.min()) < 0 or int(action.max()) >= len(FIVE_ACTIONS)):
+            if not self.static and action.numel() and (int(action.min()) < 0 or int(action.max()) >= len(FIVE_ACTIONS)):
                 raise ValueError(f"actions must be indices 0..4 of {FIVE_ACTIONS}, got {action.unique().tolist()}")
             lane = torch.where(action == LANE_LEFT, m.lane_left, torch.where(action == LANE_RIGHT, m.lane_right, keep))
             longitudinal = torch.where(action >= LANE_LEFT, torch.full_like(action, IDLE), action)
@@ -208,7 +217,7 @@ class RawSafetyLayer:
         ok = (lane == ego_lane) | crossing_allowed(self.road, ego_lane, lane, snap.ego_x)
         lane = torch.where(ok, lane, ego_lane)
         self.target_lane = lane
-        return lane, target_speed(longitudinal, torch.hypot(snap.ego_vx, snap.ego_vy))
+        return lane, target_speed(longitudinal, torch.hypot(snap.ego_vx, snap.ego_vy), check=not self.static)
 
 
 __all__ = ["FIVE_ACTIONS", "LANE_LEFT", "LANE_RIGHT", "RawModelStep", "RawSafetyLayer"]

@@ -7,6 +7,7 @@ from highway_srl.rules import ACTIONS, SafetyLayer, choose_second, observation_r
 from highway_srl.rules.reward_machine import U2, U3, U4
 from highway_srl.rules.safe_actions import FASTER, IDLE, LANE_CHANGE, SLOWER
 from highway_srl.sim.road import make_road
+from highway_srl.sim.world import World
 
 W = 3.5
 
@@ -179,3 +180,29 @@ def test_change_fits_window_scales_with_the_lateral_distance_left():
     speed = torch.tensor([5.0, 2.0, 5.0, 7.0])  # needs 15+1, 6+1, 7.5+1, 10.5+1 m
     fits = change_fits_window(road, torch.full((4,), 2), torch.full((4,), 1), x, y, speed)
     assert fits.tolist() == [False, True, True, False]
+
+
+
+@pytest.mark.parametrize("scenario", ["multi-lane", "merge"])
+def test_static_form_gives_the_same_steps_and_controls_as_the_compact_one(scenario):
+    """SafetyLayer.static (no host reads: the second model always computed, the neighbours always
+    re-queried, no action check) changes nothing in what the layer computes."""
+    gen = torch.Generator().manual_seed(3)
+    worlds = [World(scenario, "C", num_envs=6, seed=11) for _ in range(2)]
+    compact, static = SafetyLayer(worlds[0].road), SafetyLayer(worlds[1].road)
+    static.static = True
+    a, b = compact.observe(worlds[0]), static.observe(worlds[1])
+    two_models_seen = False
+    for _ in range(40):
+        two_models_seen |= bool(a.two_models.any())
+        use_second = torch.rand(6, generator=gen) < 0.5
+        for name in ("obs", "mask", "r_rm", "r_star"):
+            assert torch.equal(getattr(a.select(use_second), name), getattr(b.select(use_second), name)), name
+        action = torch.randint(0, len(ACTIONS), (6,), generator=gen)
+        (lane, speed), (lane_s, speed_s) = compact.act(action, use_second), static.act(action, use_second)
+        assert torch.equal(lane, lane_s) and torch.equal(speed, speed_s)
+        worlds[0].step(lane, speed)
+        worlds[1].step(lane_s, speed_s)
+        a, b = compact.observe(worlds[0]), static.observe(worlds[1])
+    assert b.static and not a.static
+    assert two_models_seen or scenario == "merge"  # multi-lane: the second model was in use
