@@ -20,7 +20,7 @@ import torch
 
 from highway_srl.constants import V_MAX_MPS
 from highway_srl.scenarios import EXIT, MERGE, scenario_spec
-from highway_srl.rules import FASTER, IDLE, LANE_CHANGE, SLOWER, ModelStep, SafetyStep, choose_second
+from highway_srl.rules import FASTER, IDLE, LANE_CHANGE, SLOWER, ModelStep, SafetyStep, choose_second, may_use_second
 from highway_srl.sim.policies import EGO_JAM_M, room_to_change
 from highway_srl.sim.traffic import idm_accel
 
@@ -115,7 +115,7 @@ def rule_based_decision(step: SafetyStep, scenario: str, hold_lane_change: bool 
     whose lane change the driver wants more (left on a tie) decides."""
     ego_v = torch.hypot(step.snapshot.ego_vx, step.snapshot.ego_vy)
     use_second = None
-    if bool(step.two_models.any()):
+    if may_use_second(step):  # the static form: always (no host read); choose_second picks per env
         w1 = lane_change_wish(step.primary, ego_v, scenario, hold_lane_change)
         w2 = lane_change_wish(step.second, ego_v, scenario, hold_lane_change)
         use_second = choose_second(w1, w2, step.two_models)
