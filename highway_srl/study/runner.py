@@ -181,6 +181,22 @@ def place_jobs(device: str, count: int, gpus: int) -> list[str]:
     return [f"cuda:{i % gpus}" for i in range(count)]
 
 
+def exit_with_parent(parent_pid: int, poll_s: float = 1.0) -> None:
+    """Worker initializer: end this worker once the study process that started it is gone (killed with
+    `kill PID`, not Ctrl-C, which reaches the whole group). An orphaned worker would go on training and
+    hold its run folder's lock, so the next `reproduce` would record that job as failed. A job killed
+    this way resumes from its last checkpoint (files are written atomically)."""
+    import threading
+
+    def watch() -> None:
+        while True:
+            time.sleep(poll_s)
+            if os.getppid() != parent_pid:
+                os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="exit-with-parent").start()
+
+
 def run_local(jobs: list[Job], root: Path, device: str, workers: int, on_result, work: Work = run_job) -> None:
     """`workers` worker processes (spawned, reused across jobs); one job runs inline when workers == 1.
     Jobs go to devices by place_jobs."""
@@ -192,7 +208,8 @@ def run_local(jobs: list[Job], root: Path, device: str, workers: int, on_result,
         return
     import multiprocessing as mp
 
-    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=mp.get_context("spawn")) as pool:
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=mp.get_context("spawn"),
+                             initializer=exit_with_parent, initargs=(os.getpid(),)) as pool:
         futures = {pool.submit(work, job.to_dict(), str(root), dev, threads): job for job, dev in zip(jobs, devices)}
         try:
             for fut in as_completed(futures):

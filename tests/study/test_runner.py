@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 
 import pytest
 import study_fakes as fakes
@@ -236,3 +237,53 @@ def test_reproduce_with_progress_writes_job_lines_and_finishes(tmp_path, capsys)
     assert "study" in err.err  # the bar is drawn on stderr
     n = len(study_jobs("smoke"))
     assert f"[{n}/{n}]" in err.out  # every job's line, written above the bar
+
+
+def test_a_worker_ends_when_the_study_process_is_killed(tmp_path):
+    # `kill PID` of reproduce left its spawned workers training on, holding their run folders' locks, so
+    # the next reproduce recorded those jobs as failed. Workers now end once their parent is gone.
+    import signal
+    import subprocess
+    import sys
+    import textwrap
+
+    pid_file = tmp_path / "worker.pid"
+    script = textwrap.dedent(f"""
+        import multiprocessing as mp, os, time
+        from concurrent.futures import ProcessPoolExecutor
+        from highway_srl.study.runner import exit_with_parent
+
+        def job(path):
+            open(path, "w").write(str(os.getpid()))
+            time.sleep(120)
+
+        if __name__ == "__main__":
+            with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn"), initializer=exit_with_parent,
+                                     initargs=(os.getpid(),)) as pool:
+                pool.submit(job, {str(pid_file)!r}).result()
+    """)
+    (tmp_path / "study_proc.py").write_text(script)
+    parent = subprocess.Popen([sys.executable, str(tmp_path / "study_proc.py")], cwd=tmp_path,
+                              env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    try:
+        deadline = time.time() + 60
+        while not pid_file.exists() or not pid_file.read_text():
+            assert time.time() < deadline and parent.poll() is None, "the worker never started"
+            time.sleep(0.2)
+        worker = int(pid_file.read_text())
+        parent.send_signal(signal.SIGKILL)
+        parent.wait()
+        deadline = time.time() + 30  # the worker polls its parent every second
+        while _alive(worker):
+            assert time.time() < deadline, "the orphaned worker kept running"
+            time.sleep(0.2)
+    finally:
+        parent.kill()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
