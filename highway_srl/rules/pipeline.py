@@ -259,7 +259,9 @@ class SafetyLayer:
         ids: IdMapping = id_mapping(road, probe.ego_x, ego_lane, target)
         snap = self._snapshot(world, probe, ids.primary, self.static)
         primary = self._model_step(snap, ids.primary, target)
-        if self.static or bool(ids.two_models.any()):  # where two_models is False, second repeats primary
+        # where two_models is False, second repeats primary; the static form computes it wherever the road has
+        # a middle lane (a fact of the road, no host read), which only multi-lane has
+        if (self.static and road.mainline_lanes >= 3) or (not self.static and bool(ids.two_models.any())):
             snap_b = world.neighbours(ids.second.current_lane, ids.second.adjacent_lane)
             second = self._model_step(snap_b, ids.second, target)
         else:
