@@ -10,7 +10,7 @@ shared. docs/paper-notes.md says exactly what each is and which choices the pape
   mp-rl        mapped  A* (4)   highest-Q action that passes Table 1          speed, -320 on collision
   lm-rl        mapped  A* (4)   argmax Q_r - λ Q_c, λ by dual ascent          speed, -320; cost: u2/u4, collision
   et-rl        mapped  A* (4)   ε-greedy Q; the IDM expert takes over below speed, -320 on collision
-                                a 2 s time to collision (not Table 1)
+                                2 s to collision or 1 s headway (not Table 1)
   rule-based   mapped  A* (4)   IDM + MOBIL-style, first safe action          (logged: r_RM); no learning
   ablations of moe-rm-srl: no_mapping (raw view, A*, nothing gated), no_moe (one DQN, no gate: rm-rl),
   no_rm (speed reward)
@@ -42,8 +42,13 @@ LAMBDA_LR = 0.01  # dual step per unit of episode cost above the limit
 LAMBDA_INIT = 0.0
 LAMBDA_MAX = 100.0
 
-# ET-RL (docs/paper-notes.md, "ET-RL"): the expert takes over below this time to collision
+# ET-RL (docs/paper-notes.md, "ET-RL"): the expert takes over below this time to collision, or when a gap is
+# shorter than TAKEOVER_GAP_M + TAKEOVER_HEADWAY_S x the speed of the car behind it (the time headway of
+# forward-collision warnings: TTC alone never fires at a small gap that is not closing, and an agent that
+# accelerates there is back in control one step later, chattering into the leader)
 TAKEOVER_TTC_S = 2.0
+TAKEOVER_HEADWAY_S = 1.0
+TAKEOVER_GAP_M = 2.0
 
 
 def speed_reward(scenario: str, next_obs: torch.Tensor, events, flags) -> torch.Tensor:
@@ -181,18 +186,23 @@ def time_to_collision(gap_m: torch.Tensor, closing_mps: torch.Tensor) -> torch.T
     return torch.where(closing_mps > 0, ttc, torch.full_like(ttc, float("inf")))
 
 
-def takeover_trigger(model, ego_vx: torch.Tensor, proposal: torch.Tensor, ttc_s: float = TAKEOVER_TTC_S
-                     ) -> torch.Tensor:
-    """(B,) bool: ET-RL's danger criterion, independent of Table 1: the time to collision with the leader
-    in the ego's lane (SV1) is below ttc_s; while the agent asks for or continues a lane change, also with
-    the target lane's leader (SV2, the ego closing on it) or follower (SV4, closing on the ego)."""
+def takeover_trigger(model, ego_vx: torch.Tensor, proposal: torch.Tensor, ttc_s: float = TAKEOVER_TTC_S,
+                     headway_s: float = TAKEOVER_HEADWAY_S) -> torch.Tensor:
+    """(B,) bool: ET-RL's danger criterion, independent of Table 1, on the leader in the ego's lane (SV1) and,
+    while the agent asks for or continues a lane change, on the target lane's leader (SV2, the ego behind it)
+    and follower (SV4, behind the ego): some time to collision is below ttc_s, or some bumper gap is shorter
+    than TAKEOVER_GAP_M + headway_s x the speed of the car behind that gap (m, m/s, s; headway_s <= 0: the
+    time to collision alone)."""
     gaps, vx = model.gaps_m, model.vehicles.vx
     ttc1 = time_to_collision(gaps[:, 0], ego_vx - vx[:, 0])
     ttc2 = time_to_collision(gaps[:, 1], ego_vx - vx[:, 1])
     ttc4 = time_to_collision(gaps[:, 3], vx[:, 3] - ego_vx)
+    behind = torch.stack([ego_vx, ego_vx, vx[:, 3]], 1).clamp(min=0.0)  # speed of the car behind gaps 1, 2, 4
+    short = (gaps[:, [0, 1, 3]] < TAKEOVER_GAP_M + headway_s * behind) & (headway_s > 0)  # (B, 3)
     changing = (proposal == LANE_CHANGE) | (model.t_id != model.lanes.c_id)
-    lateral = torch.where(changing, torch.minimum(ttc2, ttc4), torch.full_like(ttc1, float("inf")))
-    return torch.minimum(ttc1, lateral) < ttc_s
+    own = (ttc1 < ttc_s) | short[:, 0]
+    lateral = (torch.minimum(ttc2, ttc4) < ttc_s) | short[:, 1] | short[:, 2]
+    return own | (changing & lateral)
 
 
 class ETRL(SingleDQN):
@@ -206,11 +216,12 @@ class ETRL(SingleDQN):
     # the layer holds a change under way (the SafetyLayer default); the expert is told so, or it would ask
     # for LaneChange near the boundary, which Eq. 35 turns back into the current lane
     layer_options = {"hold_lane_change": True}
-    allowed_options = frozenset({"takeover_ttc_s"})
+    allowed_options = frozenset({"takeover_ttc_s", "takeover_headway_s"})
 
     def __init__(self, scenario, seeds, options, profile=DEFAULT_PROFILE):
         super().__init__(scenario, seeds, options, profile)
         self.ttc_s = float(self.options.get("takeover_ttc_s", TAKEOVER_TTC_S))
+        self.headway_s = float(self.options.get("takeover_headway_s", TAKEOVER_HEADWAY_S))
 
     def decide(self, learner, step, explore, generator) -> Decision:
         d = super().decide(learner, step, explore, generator)
@@ -218,7 +229,8 @@ class ETRL(SingleDQN):
         snap = step.snapshot
         ego_v = torch.hypot(snap.ego_vx, snap.ego_vy)
         # (B,) the DQN's proposal and whether the expert overrode it, for analysis and tests
-        self.proposal, self.takeover = d.action, takeover_trigger(model, snap.ego_vx, d.action, self.ttc_s)
+        self.proposal, self.takeover = d.action, takeover_trigger(model, snap.ego_vx, d.action, self.ttc_s,
+                                                                      self.headway_s)
         expert = rule_based_action(model, ego_v, self.scenario, self.layer_options["hold_lane_change"])
         return Decision(torch.where(self.takeover, expert, d.action), d.member, d.use_second)
 

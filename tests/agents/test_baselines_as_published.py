@@ -4,12 +4,18 @@ from types import SimpleNamespace
 
 import torch
 
-from highway_srl.agents.baselines import RL, TAKEOVER_TTC_S, takeover_trigger, time_to_collision
+from highway_srl.agents.baselines import (RL, TAKEOVER_GAP_M, TAKEOVER_HEADWAY_S, TAKEOVER_TTC_S, takeover_trigger,
+                                         time_to_collision)
+from highway_srl.agents.dqn import DQNConfig, DQNLearner
 from highway_srl.agents.gating import EXPERT_NAMES
+from highway_srl.agents.registry import make_method
 from highway_srl.agents.rule_based import rule_based_action
 from highway_srl.agents.trainer import Trainer
+from highway_srl.experiments.evaluate import EVAL_SEED_BASE, run_episodes
+from highway_srl.constants import OBS_DIM
 from highway_srl.rules import FASTER, IDLE, LANE_CHANGE, SLOWER
 from highway_srl.rules.raw import LANE_LEFT
+from highway_srl.sim import World
 
 
 def _watch(trainer, check, vector_steps: int = 60):
@@ -68,39 +74,73 @@ def test_without_mapping_the_first_expert_acts_even_where_table_1_forbids_its_ac
     assert seen["forbidden_run"] > 0
 
 
+def _model(gaps, vx, changing=False):
+    b = len(gaps)
+    return SimpleNamespace(gaps_m=torch.tensor(gaps), vehicles=SimpleNamespace(vx=torch.tensor(vx)),
+                           t_id=torch.full((b,), int(changing)), lanes=SimpleNamespace(c_id=torch.zeros(b, dtype=torch.long)))
+
+
 def test_time_to_collision_and_the_takeover_trigger_golden_values():
     ttc = time_to_collision(torch.tensor([10.0, 10.0, 10.0, -1.0]), torch.tensor([6.0, 4.0, -1.0, 1.0]))
     assert torch.allclose(ttc[:2], torch.tensor([10 / 6, 2.5])) and ttc[2] == float("inf") and ttc[3] == 0.0
-    # ego at 10 m/s; SV1 10 m ahead at 4 m/s (TTC 1.67 s), or at 6 m/s (2.5 s); SV4 5 m behind at 13 m/s
-    gaps = torch.tensor([[10.0, 50.0, 50.0, 5.0], [10.0, 50.0, 50.0, 5.0], [10.0, 50.0, 50.0, 5.0]])
-    vx = torch.tensor([[4.0, 10.0, 0.0, 13.0], [6.0, 10.0, 0.0, 13.0], [6.0, 10.0, 0.0, 13.0]])
-    model = SimpleNamespace(gaps_m=gaps, vehicles=SimpleNamespace(vx=vx), t_id=torch.zeros(3, dtype=torch.long),
-                            lanes=SimpleNamespace(c_id=torch.zeros(3, dtype=torch.long)))
-    proposal = torch.tensor([IDLE, IDLE, LANE_CHANGE])
-    fired = takeover_trigger(model, torch.full((3,), 10.0), proposal)
-    assert TAKEOVER_TTC_S == 2.0 and fired.tolist() == [True, False, True]  # the last: SV4 closes in 1.67 s
+    assert (TAKEOVER_TTC_S, TAKEOVER_HEADWAY_S, TAKEOVER_GAP_M) == (2.0, 1.0, 2.0)
+    # ego at 10 m/s, so the headway rule fires on a gap < 2 + 1 x 10 = 12 m behind SV1 or SV2, and on a gap
+    # < 2 + 1 x 13 = 15 m before SV4 at 13 m/s. Rows: SV1 13 m ahead at 4 m/s (TTC 2.17 s, headway fine);
+    # at 6.5 m/s (TTC 3.7 s); SV1 11 m ahead at 10 m/s (not closing: TTC inf, but 11 < 12 m); the second row
+    # with a lane change asked for and SV4 16 m behind at 13 m/s (TTC 5.3 s, 16 > 15 m: quiet) / 14 m (fires)
+    ego = torch.full((5,), 10.0)
+    gaps = [[13.0, 50.0, 50.0, 50.0], [13.0, 50.0, 50.0, 50.0], [11.0, 50.0, 50.0, 50.0],
+            [13.0, 50.0, 50.0, 16.0], [13.0, 50.0, 50.0, 14.0]]
+    vx = [[4.0, 10.0, 0.0, 10.0], [6.5, 10.0, 0.0, 10.0], [10.0, 10.0, 0.0, 10.0], [6.5, 10.0, 0.0, 13.0],
+          [6.5, 10.0, 0.0, 13.0]]
+    proposal = torch.tensor([IDLE, IDLE, IDLE, LANE_CHANGE, LANE_CHANGE])
+    assert takeover_trigger(_model(gaps, vx), ego, proposal).tolist() == [False, False, True, False, True]
+    assert takeover_trigger(_model(gaps, vx), ego, proposal, ttc_s=2.5).tolist() == [True, False, True, False, True]
+    # TTC alone (headway_s 0): the not-closing 11 m gap is quiet, SV4 at 14 m closes in 4.7 s: quiet too
+    assert takeover_trigger(_model(gaps, vx), ego, proposal, headway_s=0.0).tolist() == [False] * 5
+    # a lane change under way (T_ID != C_ID) watches SV4 without a LaneChange proposal
+    assert takeover_trigger(_model(gaps[4:], vx[4:], changing=True), ego[:1], proposal[:1]).tolist() == [True]
 
 
-def test_et_rl_expert_acts_only_on_its_trigger_and_forbidden_proposals_run_otherwise(short_config):
+def test_et_rl_expert_keeps_an_agent_that_always_speeds_up_off_the_car_ahead():
+    """The expert takeover is what makes ET-RL safe, whatever its DQN proposes: a DQN that always proposes
+    Faster drives level-E traffic without a collision. With the time to collision alone as the trigger it
+    does not: at a small gap that is not closing nothing fires, the agent speeds up, the expert brakes for
+    one step and hands back (C_r 0 % of the quick study's trained ET-RL at level E, 100 % with the headway)."""
+    collided = {}
+    for name, headway in (("ttc and headway", TAKEOVER_HEADWAY_S), ("ttc alone", 0.0)):
+        method = make_method("et-rl", "two-lane", 1, {"takeover_headway_s": headway})
+        learner = DQNLearner(1, method.action_mask(), DQNConfig(), "cpu", OBS_DIM, method.out_dim)
+        with torch.no_grad():
+            learner.online.params()[5][..., FASTER] = 1e4  # the output bias: Faster's Q dwarfs the others
+        world = World("two-lane", "E", False, 8, "cpu", [EVAL_SEED_BASE + i for i in range(8)])
+        collided[name] = int(run_episodes(world, method, learner)["collided"].sum())
+    assert collided["ttc and headway"] == 0 and collided["ttc alone"] > 0, collided
+
+
+def test_et_rl_expert_acts_exactly_on_its_trigger_not_on_table_1(short_config):
     config = short_config("et-rl")
     config.traffic = "C"
     trainer = Trainer(config)
     method = trainer.method
-    seen = {"takeovers": 0, "forbidden_run": 0, "quiet": 0}
+    seen = {"takeovers": 0, "allowed_overridden": 0, "quiet": 0}
 
     def check(step, d):
         model = step.select(d.use_second)
         ego_v = torch.hypot(step.snapshot.ego_vx, step.snapshot.ego_vy)
         expert = rule_based_action(model, ego_v, "two-lane", hold_lane_change=True)
         assert torch.equal(d.action, torch.where(method.takeover, expert, method.proposal))
-        allowed = model.mask.gather(1, d.action[:, None]).squeeze(1)
+        allowed = model.mask.gather(1, method.proposal[:, None]).squeeze(1)
         seen["takeovers"] += int(method.takeover.sum())
         seen["quiet"] += int((~method.takeover).sum())
-        seen["forbidden_run"] += int((~method.takeover & ~allowed).sum())
+        seen["allowed_overridden"] += int((method.takeover & allowed).sum())
 
     _watch(trainer, check)
     assert seen["takeovers"] > 0 and seen["quiet"] > seen["takeovers"]
-    assert seen["forbidden_run"] > 0  # not a shield: Table 1 does not decide when the expert acts
+    # not a shield: Table 1 does not decide when the expert acts (it overrides proposals Table 1 allows). The
+    # two mostly agree on what is dangerous: with the headway rule a proposal Table 1 forbids ran without a
+    # takeover 1 time in 3,200 random proposals at level C (docs/paper-notes.md, ET-RL)
+    assert seen["allowed_overridden"] > 0
 
 
 def test_an_et_rl_lane_change_under_way_completes_when_the_expert_drives(short_config):
