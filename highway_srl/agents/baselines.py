@@ -60,9 +60,9 @@ def speed_reward(scenario: str, next_obs: torch.Tensor, events, flags) -> torch.
     return scenario_reward(scenario, speed, events.collision, **flags.reward_inputs())
 
 
-def random_allowed(allowed: torch.Tensor, generator: torch.Generator | None) -> torch.Tensor:
-    """(B,) long: an action drawn uniformly from the True entries of allowed (B, K) (each row has one)."""
-    u = torch.rand(allowed.shape, generator=generator, device=allowed.device)
+def random_allowed(allowed: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    """(B,) long: an action drawn uniformly from the True entries of allowed (B, K) (each row has one), at
+    the uniforms u (B, K) in [0, 1): the allowed entry with the largest u."""
     return u.masked_fill(~allowed, -1.0).argmax(1)
 
 
@@ -133,19 +133,24 @@ class SingleDQN(_Options, Method):
     def member(self, batch: int, device) -> torch.Tensor:
         return seed_of_env(batch, self.seeds, device) * self.members_per_seed
 
-    def decide(self, learner, step, explore, generator) -> Decision:
+    @property
+    def draw_width(self) -> int:
+        return self.out_dim  # a uniform per action of the view's set (random_allowed)
+
+    def decide(self, learner, step, explore, u) -> Decision:
         use_second = None
         if may_use_second(step):  # multi-lane middle lane: the model whose best action is worth more
             values = [highest_allowed_value(self.scores(learner, m), self.allowed(m)) for m in (step.primary, step.second)]
             use_second = choose_second(values[0], values[1], step.two_models)
         model = step.select(use_second)
-        action = self.act(learner, model, explore, generator)
+        action = self.act(learner, model, explore, u)
         return Decision(action, self.member(action.shape[0], action.device), use_second)
 
-    def act(self, learner, model, explore, generator) -> torch.Tensor:
+    def act(self, learner, model, explore, u) -> torch.Tensor:
+        """explore (B,) bool, u (B, out_dim) uniforms or None (explore all False): see Method.decide."""
         allowed = self.allowed(model)
         greedy = highest_allowed(self.scores(learner, model), allowed)
-        return torch.where(explore, random_allowed(allowed, generator), greedy)
+        return greedy if u is None else torch.where(explore, random_allowed(allowed, u), greedy)
 
     def reward(self, scenario, nxt, events, flags):
         if self.reward_kind == "rm":
@@ -223,8 +228,8 @@ class ETRL(SingleDQN):
         self.ttc_s = float(self.options.get("takeover_ttc_s", TAKEOVER_TTC_S))
         self.headway_s = float(self.options.get("takeover_headway_s", TAKEOVER_HEADWAY_S))
 
-    def decide(self, learner, step, explore, generator) -> Decision:
-        d = super().decide(learner, step, explore, generator)
+    def decide(self, learner, step, explore, u) -> Decision:
+        d = super().decide(learner, step, explore, u)
         model = step.select(d.use_second)
         snap = step.snapshot
         ego_v = torch.hypot(snap.ego_vx, snap.ego_vy)
@@ -299,6 +304,12 @@ class LMRL(SingleDQN):
             return learner.update(both, targets).head(k)
         return learner.update_masked(both, targets, torch.cat([mask, mask])).head(k)
 
+    def start(self, batch, device, static) -> None:
+        if static:  # λ on the device and the episode costs from the start (the compact form: λ on the host)
+            self.lam = self.lam.to(device)
+            if self.episode_cost is None:
+                self.episode_cost = torch.zeros(batch, device=device)
+
     def after_step(self, trainer, events, cost, done) -> None:
         """Dual ascent: once per vector step in which episodes of a seed ended, λ_seed moves by
         LAMBDA_LR x (mean cost of those episodes - COST_LIMIT)."""
@@ -352,7 +363,7 @@ class RuleBased(_Options, Method):
     def action_mask(self) -> torch.Tensor:
         return torch.ones(self.num_members, self.out_dim, dtype=torch.bool)
 
-    def decide(self, learner, step, explore, generator) -> Decision:
+    def decide(self, learner, step, explore, u) -> Decision:
         action, use_second = rule_based_decision(step, self.scenario, self.layer_options["hold_lane_change"])
         return Decision(action, torch.full_like(action, -1), use_second)
 

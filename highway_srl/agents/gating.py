@@ -64,8 +64,10 @@ _LAYER2_BY_REJECTED, _LAYER3_BY_REJECTED_PAIR, _PADDED_SETS, _SET_SIZES = _looku
 _TABLE_CACHE: dict[torch.device, tuple[torch.Tensor, ...]] = {}
 
 
-def _tables(device: torch.device) -> tuple[torch.Tensor, ...]:
-    # One host->device copy per device for the whole run, not one per call.
+def gate_tables(device: torch.device) -> tuple[torch.Tensor, ...]:
+    """The gate's look-up tables on device, copied there once for the whole run, not once per call. A
+    traced step should find them made (MoERMSRL.start): one it makes itself is recompiled on its next call
+    (the cache's content is guarded on)."""
     if device not in _TABLE_CACHE:
         _TABLE_CACHE[device] = tuple(
             t.to(device) for t in (_LAYER2_BY_REJECTED, _LAYER3_BY_REJECTED_PAIR, _PADDED_SETS, _SET_SIZES)
@@ -88,7 +90,7 @@ def polite_gate(greedy: torch.Tensor, safe: torch.Tensor) -> tuple[torch.Tensor,
        so the last one is. This also covers Algorithm 3's "A_3,j minus act_3,j" branch, which is
        the same action; its final "Idle" branch is unreachable.
     """
-    layer2, layer3, _, _ = _tables(greedy.device)
+    layer2, layer3, _, _ = gate_tables(greedy.device)
     a1 = greedy[:, 0]
     e2 = layer2[a1]
     a2 = greedy.gather(1, e2.unsqueeze(1)).squeeze(1)
@@ -104,15 +106,12 @@ def polite_gate(greedy: torch.Tensor, safe: torch.Tensor) -> tuple[torch.Tensor,
     return action, expert
 
 
-def random_expert_actions(
-    batch: int, generator: torch.Generator | None = None, device: torch.device | str | None = None
-) -> torch.Tensor:
-    """(batch, 11) long: for every row and expert, an action drawn uniformly from the expert's set."""
-    device = torch.device(device) if device is not None else torch.device("cpu")
-    _, _, padded, sizes = _tables(device)
-    u = torch.rand(batch, NUM_EXPERTS, generator=generator, device=device)
+def random_expert_actions(u: torch.Tensor) -> torch.Tensor:
+    """(B, 11) long: for every row and expert, an action drawn uniformly from the expert's set, at the
+    uniforms u (B, 11) in [0, 1) (drawn by the caller: a traced step takes them as an input)."""
+    _, _, padded, sizes = gate_tables(u.device)
     slot = (u * sizes).long().clamp_(max=NUM_ACTIONS - 1)  # clamp guards u*size rounding up to size
-    return padded.unsqueeze(0).expand(batch, -1, -1).gather(2, slot.unsqueeze(2)).squeeze(2)
+    return padded.unsqueeze(0).expand(u.shape[0], -1, -1).gather(2, slot.unsqueeze(2)).squeeze(2)
 
 
 def explore_gate(safe: torch.Tensor, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -126,5 +125,5 @@ def explore_gate(safe: torch.Tensor, generator: torch.Generator | None = None) -
     consulted experts' proposals, each an independent uniform draw from its set, and which
     expert is consulted next depends only on earlier proposals.
     """
-    proposals = random_expert_actions(safe.shape[0], generator, safe.device)
-    return polite_gate(proposals, safe)
+    u = torch.rand(safe.shape[0], NUM_EXPERTS, generator=generator, device=safe.device)
+    return polite_gate(random_expert_actions(u), safe)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import torch
 
 from highway_srl.agents.dqn import DQNLearner, UpdateStats
-from highway_srl.agents.gating import EXPERT_NAMES, expert_action_mask
+from highway_srl.agents.gating import EXPERT_NAMES, NUM_EXPERTS, expert_action_mask, gate_tables
 from highway_srl.agents.moe import MoEPolicy, seed_of_env
 from highway_srl.agents.replay import ExpertReplay
 from highway_srl.rules import ACTIONS, SafetyLayer, choose_second, control_profile, may_use_second, scenario_reward
@@ -55,7 +55,13 @@ class Method:
     def action_mask(self) -> torch.Tensor:
         raise NotImplementedError
 
-    def decide(self, learner, step, explore, generator) -> Decision:
+    # columns of the uniforms (B, draw_width) decide reads for its random actions; 0: it draws none
+    draw_width: int = 0
+
+    def decide(self, learner, step, explore: torch.Tensor, u: torch.Tensor | None) -> Decision:
+        """The decision on the layer's view step (SafetyStep). explore (B,) bool: the ε-greedy draw; u
+        (B, draw_width) uniforms in [0, 1) for the random actions (drawn by the caller, so that a traced step
+        takes them as an input), or None where explore is all False (evaluation: no draw)."""
         raise NotImplementedError
 
     def reward(self, scenario, nxt, events, flags) -> tuple[torch.Tensor, torch.Tensor | None]:
@@ -83,6 +89,11 @@ class Method:
             return learner.update(members, batch)
         return learner.update_masked(members, batch, mask)
 
+    def start(self, batch: int, device: torch.device, static: bool) -> None:
+        """Called by the trainer of batch envs on device before its first step and after a resume: the
+        static form keeps whatever state the method carries on the device from the start (a traced step
+        then sees the same tensors every step)."""
+
     def after_step(self, trainer, events, cost, done) -> None:
         pass
 
@@ -97,6 +108,7 @@ class MoERMSRL(Method):
     """MoE-RM-SRL (§3.4): 11 experts per seed over the subsets of A*, PoG when exploiting, ExG when exploring."""
 
     name = "moe-rm-srl"
+    draw_width = NUM_EXPERTS  # ExG: a random proposal of every expert
 
     def __init__(self, scenario, seeds, options, profile=DEFAULT_PROFILE):
         super().__init__(scenario, seeds, options, profile)
@@ -107,18 +119,21 @@ class MoERMSRL(Method):
     def action_mask(self) -> torch.Tensor:
         return self.policy.action_mask()
 
+    def start(self, batch, device, static) -> None:
+        gate_tables(device)
+
     def gate_mask(self, model) -> torch.Tensor:
         """(B, 4) bool: the actions the sparse gate treats as safe (Table 1 on R*_SV)."""
         return model.mask
 
-    def decide(self, learner, step, explore, generator) -> Decision:
+    def decide(self, learner, step, explore, u) -> Decision:
         use_second = None
         if may_use_second(step):
             v1 = self.policy.value(learner, step.primary.obs, self.gate_mask(step.primary))
             v2 = self.policy.value(learner, step.second.obs, self.gate_mask(step.second))
             use_second = choose_second(v1, v2, step.two_models)
         model = step.select(use_second)
-        action, member = self.policy.act(learner, model.obs, self.gate_mask(model), explore, generator)
+        action, member = self.policy.act(learner, model.obs, self.gate_mask(model), explore, u)
         return Decision(action, member, use_second)
 
     def store(self, replay, d, obs, reward, next_obs, done, cost, share=False):

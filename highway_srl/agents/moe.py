@@ -53,12 +53,12 @@ class MoEPolicy:
         obs: torch.Tensor,
         safe: torch.Tensor,
         explore: torch.Tensor,
-        generator: torch.Generator | None = None,
+        u: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """obs (B, 37), safe (B, 4) bool, explore (B,) bool (ε-greedy draw: ExG where True, PoG elsewhere)."""
+        """obs (B, 37), safe (B, 4) bool, explore (B,) bool (ε-greedy draw: ExG where True, PoG elsewhere),
+        u (B, 11) the uniforms of ExG's random proposals (None: explore is all False, PoG everywhere)."""
         greedy = grouped_q(learner, obs, self.seeds, self.members_per_seed).argmax(-1)  # (B, 11)
-        random = random_expert_actions(obs.shape[0], generator, obs.device)
-        proposals = torch.where(explore.unsqueeze(1), random, greedy)
+        proposals = greedy if u is None else torch.where(explore.unsqueeze(1), random_expert_actions(u), greedy)
         action, expert = polite_gate(proposals, safe)
         seed = seed_of_env(obs.shape[0], self.seeds, obs.device)
         member = torch.where(expert >= 0, seed * self.members_per_seed + expert, expert)

@@ -25,12 +25,13 @@ class Transition:
     cost: torch.Tensor | None  # (B,) its cost signal, for methods that use one
 
 
-def policy_step(method, learner, world, layer, view, explore: torch.Tensor, generator: torch.Generator | None,
+def policy_step(method, learner, world, layer, view, explore: torch.Tensor, u: torch.Tensor | None,
                 stats: EpisodeStats, alive: torch.Tensor | None = None, train: bool = False) -> Transition:
     """Decide from `view` (the layer's SafetyStep of the current state), step the world through the layer,
     compute the training reward if `train`, and account the step in `stats` (only the `alive` envs, if given).
-    explore: (B,) bool, the ε-greedy draw the method reads."""
-    decision = method.decide(learner, view, explore, generator)
+    explore: (B,) bool, the ε-greedy draw the method reads; u: its uniforms (B, method.draw_width), None
+    where explore is all False (Method.decide)."""
+    decision = method.decide(learner, view, explore, u)
     events, nxt, flags = advance(world, layer, decision.action, decision.use_second)
     reward = cost = None
     if train:

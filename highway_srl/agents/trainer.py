@@ -4,7 +4,8 @@ One vector step: observe (rules) -> act (method) -> control mapping -> world ste
 state -> reward -> store in the acting member's buffer -> episode bookkeeping and resets -> DQN updates
 of the members that acted. Everything stays on the trainer's device. The compact form (the CPU's eager
 default) reads back whether an env is done and which members to update; the static form (CUDA, compiled)
-reads nothing but the finished episodes, every few vector steps (Trainer).
+reads nothing but the finished episodes, every few vector steps (Trainer). A step's random numbers are drawn
+before it (Trainer.draw), so that the static step is one traced graph (Trainer.vector_step).
 """
 
 from __future__ import annotations
@@ -50,8 +51,8 @@ class TrainConfig:
     # 2-core machine, 51.8 env-steps/s compact vs 3.9 static (docs/benchmarks.md). The two draw different
     # samples (so different numbers), the same rate and semantics.
     static: bool | None = None
-    # torch.compile the static step's parts (Trainer.compiled): False, True (CUDA graphs on CUDA), or a
-    # torch.compile mode or backend name (tests: "aot_eager")
+    # torch.compile the static vector step as one graph (compile_vector_step): False, True (CUDA graphs on
+    # CUDA), or a torch.compile mode or backend name (tests: "aot_eager")
     compile: bool | str = False
     dqn: DQNConfig = field(default_factory=DQNConfig)
     options: dict = field(default_factory=dict)  # method-specific switches (ablations)
@@ -116,6 +117,19 @@ OPTIONAL_KEYS = frozenset({"episode.ep_rm_return"})
 
 
 @dataclass
+class Draws:
+    """The random numbers of one vector step (Trainer.draw), drawn with the trainer's generator before the
+    step in the order the step reads them; the step draws nothing itself, so a traced step takes them as
+    inputs (dynamo does not take a torch.Generator)."""
+
+    explore: torch.Tensor  # (B,) bool: the ε-greedy draw, u < ε
+    act: torch.Tensor | None  # (B, method.draw_width) uniforms of the method's random actions; None: it has none
+    learn: bool  # the step updates (the env steps, this one counted, reached learning_starts)
+    update: torch.Tensor | None  # static form: (rounds, K, batch) uniforms of the update rounds' samples, None
+    # when it does not learn or trains no member; the compact form samples in its update (how many: a host read)
+
+
+@dataclass
 class Episode:
     seed: int
     step: int  # environment steps of this seed when the episode ended
@@ -136,8 +150,9 @@ class Trainer:
     static (config.static; on CUDA and whenever compiled): every reset is a masked select of freshly
     spawned state, and every member the method can train takes a fixed number of update rounds under a mask
     (ceil(replay_ratio x envs): the most one member can be owed), each on its own batch. Nothing in the
-    static step reads the device (the rule layer and the methods run in their static forms too); its only
-    graph breaks left are the random draws with the generator.
+    static step reads the device (the rule layer and the methods run in their static forms too), and its
+    random numbers are drawn before it (draw), so vector_step is one graph with no break
+    (tests/agents/test_compiled_training.py), which config.compile compiles whole (compile_vector_step).
 
     In both, finished episodes wait on the device (FinishedEpisodes) and are read every drain_every vector
     steps (step returns them then) or by drain(); state_dict needs them drained (train drains before each
@@ -150,8 +165,9 @@ class Trainer:
         self.num_seeds = len(cfg.seeds)
         self.batch = cfg.envs * self.num_seeds
         env_seeds = [s * 1_000_003 + e for s in cfg.seeds for e in range(cfg.envs)]
+        # compiled, the world's step is traced into the trainer's one graph (compile_vector_step), not on its own
         self.world = World(cfg.scenario, cfg.traffic, cfg.adversarial, self.batch, cfg.device, env_seeds,
-                           adversary=cfg.adversary, compile=cfg.compile)
+                           adversary=cfg.adversary)
         self.device = self.world.device
         self.static = cfg.static if cfg.static is not None else bool(cfg.compile) or self.device.type == "cuda"
         if cfg.compile and not self.static:
@@ -183,10 +199,17 @@ class Trainer:
         self.trained = self.method.trained_members(self.device)
         per_step = cfg.updates_per_step if cfg.replay_ratio is None else math.ceil(cfg.replay_ratio * cfg.envs)
         self.static_rounds = per_step if self.trained.numel() else 0
-        self.update_round = self.eager_update_round
-        if cfg.compile:
-            self.update_round = compile_update_round(self, cfg.compile)
-        self.current = self.layer.observe(self.world)
+        self.method.start(self.batch, self.device, self.static)
+        self._view = self.layer.observe(self.world)
+        self.run_step = compile_vector_step(self, cfg.compile) if cfg.compile else self.vector_step
+
+    @property
+    def current(self):
+        """The rule layer's view (SafetyStep) of the current state: what the next step decides on. The static
+        form observes it at the start of each step (a traced step carries no view over), so here on demand."""
+        if self._view is None:
+            self._view = self.layer.observe(self.world)
+        return self._view
 
     @property
     def env_steps(self) -> int:
@@ -196,35 +219,54 @@ class Trainer:
     # ------------------------------------------------------------------ one vector step
     def step(self) -> list[Episode]:
         """One vector step; returns the episodes drained now (every drain_every steps; [] in between)."""
+        self.run_step(self.draw())
+        self.vector_steps += 1
+        return self.drain() if self.vector_steps % self.drain_every == 0 else []
+
+    def draw(self) -> Draws:
+        """The next vector step's random numbers, in the order (and shapes) the step reads them: the ε draw
+        (B,), the method's uniforms (B, draw_width), the static update rounds' (rounds, K, batch) when it
+        learns. ε and whether it learns are host numbers of the step count (so never read in the step)."""
+        cfg = self.config
+        explore = torch.rand(self.batch, generator=self.gen, device=self.device) < cfg.dqn.epsilon(self.env_steps)
+        width = self.method.draw_width
+        act = torch.rand(self.batch, width, generator=self.gen, device=self.device) if width else None
+        learn = (self.vector_steps + 1) * cfg.envs >= cfg.dqn.learning_starts
+        update = None
+        if self.static and learn and self.static_rounds:
+            # all rounds' draws at once, one per (round, member, sample): every member samples every round
+            update = torch.rand(self.static_rounds, self.trained.shape[0], cfg.dqn.batch_size, generator=self.gen,
+                                device=self.device)
+        return Draws(explore, act, learn, update)
+
+    def vector_step(self, draws: Draws) -> None:
+        """One vector step at the given draws, all but the host's step count (step). The static form reads
+        nothing back and no Python number that changes from step to step: one graph (compile_vector_step)."""
         cfg, world, layer = self.config, self.world, self.layer
-        cur = self.current
-        eps = cfg.dqn.epsilon(self.env_steps)
-        explore = torch.rand(self.batch, generator=self.gen, device=self.device) < eps
-        t = policy_step(self.method, self.learner, world, layer, cur, explore, self.gen, self.stats, train=True)
+        cur = layer.observe(world) if self.static else self.current
+        t = policy_step(self.method, self.learner, world, layer, cur, draws.explore, draws.act, self.stats, train=True)
         decision, events, nxt = t.decision, t.events, t.view
         self.usage.index_add_(0, decision.member + 1, torch.ones_like(decision.member))
         model = cur.select(decision.use_second)
         self.method.store(self.replay, decision, model.obs, t.reward, nxt.primary.obs, events.terminated, t.cost,
                           share=cfg.share_transitions)
         done = events.terminated | events.truncated
-        self.vector_steps += 1
-        self.step_count += 1  # the same count on the device: tags the episodes without a host-to-device copy
+        self.step_count += 1  # the step count on the device: tags the episodes without a host-to-device copy
         self.finished.record(done, self.stats.rows(), self.step_count)
         self.stats.restart(done)
         if self.static:
             world.reset_where(done)
             layer.reset(done)
-            nxt = layer.observe(world)
-        elif bool(done.any()):
-            world.reset(done)
-            layer.reset(done)
-            nxt = layer.observe(world)
-        self.current = nxt
-
-        if self.env_steps >= cfg.dqn.learning_starts:
-            self._update(decision.member)
+            self._view = None  # the next step observes the new state
+        else:
+            if bool(done.any()):
+                world.reset(done)
+                layer.reset(done)
+                nxt = layer.observe(world)
+            self._view = nxt
+        if draws.learn:
+            self._update(decision.member, draws.update)
         self.method.after_step(self, events, t.cost, done)
-        return self.drain() if self.vector_steps % self.drain_every == 0 else []
 
     def drain(self) -> list[Episode]:
         """The finished episodes not yet read, in the order they ended (one host read)."""
@@ -262,16 +304,17 @@ class Trainer:
         members = updates.nonzero().squeeze(1)
         return members, updates[members]
 
-    def _update(self, acted: torch.Tensor) -> None:
+    def _update(self, acted: torch.Tensor, u: torch.Tensor | None) -> None:
+        """The updates after a vector step in which acted (B,) names each env's acting member. Static form:
+        every trained member takes len(u) rounds under a mask, sampling at u (rounds, K, batch) (None: the
+        method trains no member); compact: the owed members, sampled with the generator."""
         cfg = self.config
         if self.static:
-            rounds, members = self.static_rounds, self.trained
-            if rounds == 0:
+            if u is None:
                 return
+            members = self.trained
             need = self.owed_updates(acted)[members]
-            # all rounds' draws at once, one per (round, member, sample): every member samples every round
-            u = torch.rand(rounds, members.shape[0], cfg.dqn.batch_size, generator=self.gen, device=self.device)
-            for i in range(rounds):  # round i: every member owed more than i steps, one batch each
+            for i in range(u.shape[0]):  # round i: every member owed more than i steps, one batch each
                 mask = need > i
                 self.update_log.add(UpdateStats(*self.update_round(members, u[i], mask)), mask)
             return
@@ -282,7 +325,7 @@ class Trainer:
             batch = self.replay.sample(take, cfg.dqn.batch_size, self.gen)
             self.update_log.add(self.method.update(self.learner, take, batch))
 
-    def eager_update_round(self, members: torch.Tensor, u: torch.Tensor, mask: torch.Tensor) -> tuple:
+    def update_round(self, members: torch.Tensor, u: torch.Tensor, mask: torch.Tensor) -> tuple:
         """One static update round: members (K,) each sample their buffer at u (K, batch) and step where
         mask (K,) is True. Returns the UpdateStats fields (a tuple: what a compiled graph returns)."""
         stats = self.method.update(self.learner, members, self.replay.sample_at(members, u), mask)
@@ -325,27 +368,53 @@ class Trainer:
         if "counters.update_credit" in state:
             self.update_credit = state["counters.update_credit"].to(self.device, torch.float64).clone()
         self.method.load_state_dict(method)
-        self.current = self.layer.observe(self.world)
+        self.method.start(self.batch, self.device, self.static)
+        self._view = self.layer.observe(self.world)
 
 
-def compile_update_round(trainer: Trainer, how: bool | str):
-    """trainer.eager_update_round as one torch.compile graph (how: sim.world.compile_options).
+def compile_vector_step(trainer: Trainer, how: bool | str):
+    """trainer.vector_step as one torch.compile graph with no break (how: sim.world.compile_options), the
+    update rounds unrolled in it; at most two graphs are compiled (Draws.learn and whether Draws.update is
+    None are guarded on).
 
-    The round mutates the learner's state in place; on CUDA those tensors are marked static, so that CUDA
-    graphs replay onto them instead of skipping the graph. Its outputs (the round's stats) are consumed
-    before the next round starts, which each call marks (a new CUDA-graph step)."""
+    Under CUDA graphs the graph's outputs are overwritten by its next replay, and a replay writes in place
+    only into tensors marked static: every state tensor (world, rule layer, learner, replay, statistics,
+    method) is marked so before each call, and one the step replaced by a new tensor (an output) is copied
+    back into the tensor it replaced, so that the state keeps its addresses and no output outlives its call."""
     opts = compile_options(how, trainer.device)
-    if trainer.device.type == "cuda":
-        learner = trainer.learner
-        for t in (learner.online.flat, learner.target.flat, learner.exp_avg, learner.exp_avg_sq, learner.adam_step,
-                  learner.target_update_count, *trainer.replay.storage.values()):
-            torch._dynamo.mark_static_address(t)
-    graph = torch.compile(trainer.eager_update_round, **opts)
+    graph = torch.compile(trainer.vector_step, **opts)
     if not uses_cuda_graphs(opts, trainer.device):
         return graph
+    # the state's attributes as the trainer starts (an attribute the step adds, such as ET-RL's analysis
+    # tensors, is an output the next step does not read)
+    names = [[name for name, value in vars(owner).items() if isinstance(value, torch.Tensor)]
+             for owner in state_owners(trainer)]
 
-    def replay(members: torch.Tensor, u: torch.Tensor, mask: torch.Tensor) -> tuple:
+    def replay(draws: Draws) -> None:
+        held = [(owner, name, getattr(owner, name)) for owner, keys in zip(state_owners(trainer), names)
+                for name in keys]
+        for tensor in [t for _, _, t in held] + in_place_state(trainer):
+            torch._dynamo.mark_static_address(tensor)
         torch.compiler.cudagraph_mark_step_begin()
-        return graph(members, u, mask)
+        graph(draws)
+        for owner, name, tensor in held:
+            new = getattr(owner, name)
+            if new is not tensor:
+                tensor.copy_(new)
+                setattr(owner, name, tensor)
 
     return replay
+
+
+def state_owners(trainer: Trainer) -> list:
+    """The objects whose tensor attributes hold the state the vector step carries from one step to the next
+    (in place or replaced by new tensors)."""
+    layer = trainer.layer
+    return [trainer, trainer.learner, trainer.replay, trainer.update_log, trainer.stats, trainer.finished,
+            trainer.world.state, trainer.method, layer, getattr(layer, "mapped", layer)]
+
+
+def in_place_state(trainer: Trainer) -> list[torch.Tensor]:
+    """The state tensors held elsewhere than in an attribute, all written in place: weights and replay rows."""
+    learner = trainer.learner
+    return [learner.online.flat, learner.target.flat, *trainer.replay.storage.values()]

@@ -245,7 +245,9 @@ class SafetyLayer:
     def observe(self, world) -> SafetyStep:
         """Run the rule machinery on the world's current state; returns (and keeps) a SafetyStep."""
         road = self.road
-        if self._query is None or self.target_lane is None:
+        # the probe's ego fields are all it is read for; the static form does not carry the last query over
+        # (a traced step keeps no view of the step before)
+        if self.static or self._query is None or self.target_lane is None:
             probe = world.neighbours(*self._probe_lanes(world))
         else:
             probe = world.neighbours(*self._query)

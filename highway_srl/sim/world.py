@@ -6,6 +6,7 @@ Python loops over envs or vehicles (only over the at most three lanes).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, fields
 
 import torch
@@ -72,6 +73,20 @@ def check_device(device: str | torch.device) -> torch.device:
     if dev.type not in ("cpu", "cuda"):
         raise ValueError(f"unsupported device {device!r}; use cpu, cuda or cuda:N")
     return dev
+
+
+def inference_mode_when_eager(fn):
+    """fn in torch.inference_mode when it runs eagerly (a fifth of a single env's step is autograd bookkeeping
+    otherwise); traced into a caller's graph (the trainer's compiled vector step), fn as it is: aot_autograd
+    fails on an inference-mode region inside a graph ('Cannot set version_counter for inference tensor'), and
+    a graph keeps no autograd bookkeeping of tensors that need no gradient anyway."""
+    inference = torch.inference_mode()(fn)
+
+    @functools.wraps(fn)
+    def run(*args, **kwargs):
+        return fn(*args, **kwargs) if torch.compiler.is_compiling() else inference(*args, **kwargs)
+
+    return run
 
 
 class World:
@@ -141,7 +156,7 @@ class World:
         self.static = False
 
     # ------------------------------------------------------------------ episodes
-    @torch.inference_mode()
+    @inference_mode_when_eager
     def reset(self, mask: torch.Tensor | None = None) -> None:
         """Start new episodes in the envs where mask (B,) is True (all envs if None)."""
         s = self.state
@@ -154,7 +169,7 @@ class World:
         fresh = spawn(self.road, self.level, self.layout, s.seed[idx], s.episode[idx] + 1, self.style)
         s.index_put(idx, fresh)
 
-    @torch.inference_mode()
+    @inference_mode_when_eager
     def reset_where(self, mask: torch.Tensor) -> None:
         """reset(mask) in the static form: a masked select of a full spawn, no host read (the same
         values; compiled worlds always reset this way). Costs a spawn of every env."""
@@ -164,7 +179,7 @@ class World:
         fresh = self.spawn_where(self.state, mask)
         torch._foreach_copy_(list(astuple_shallow(self.state)), list(astuple_shallow(fresh)))
 
-    @torch.inference_mode()
+    @inference_mode_when_eager
     def step(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
         """Advance every env by δt with the ego tracking (target lane (B,) long, target speed (B,) m/s).
 
@@ -188,7 +203,7 @@ class World:
         lane = torch.as_tensor(target_lane, device=self.device).long().reshape(self.num_envs)
         return lane, torch.as_tensor(target_speed, device=self.device, dtype=torch.float32).reshape(self.num_envs)
 
-    @torch.inference_mode()
+    @inference_mode_when_eager
     def step_and_reset(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
         """step, then new episodes where it terminated or truncated (the events are the step's): one graph
         when compiled; eager, a reset only when some env is done (a host read)."""

@@ -50,9 +50,10 @@ class _HalfRandom:
     def make_layer(self, road):
         return self.method.make_layer(road)
 
-    def decide(self, learner, step, explore, generator):
-        b = explore.shape[0]
-        return self.method.decide(learner, step, torch.arange(b) < b // 2, self.gen)
+    def decide(self, learner, step, explore, u):
+        b, width = explore.shape[0], self.method.draw_width
+        u = torch.rand(b, width, generator=self.gen) if width else None
+        return self.method.decide(learner, step, torch.arange(b) < b // 2, u)
 
 
 @pytest.fixture

@@ -39,12 +39,13 @@ def test_sr_rl_executes_the_highest_q_action_that_passes_the_safety_check():
     masks = masks.repeat(4, 1)
     q = torch.randn(masks.shape[0], 5, generator=gen)
     method = SRRL("two-lane", 1, {})
-    d = method.decide(_FixedQ(q), _step(masks), torch.zeros(masks.shape[0], dtype=torch.bool), gen)
+    u = torch.rand(masks.shape, generator=gen)
+    d = method.decide(_FixedQ(q), _step(masks), torch.zeros(masks.shape[0], dtype=torch.bool), u)
     for b in range(masks.shape[0]):  # Mirchevska et al.: try actions in descending Q order, run the first safe one
         first_safe = next(a for a in q[b].argsort(descending=True).tolist() if masks[b, a])
         assert int(d.action[b]) == first_safe
     # exploring, the random action is drawn from the safe set only
-    d = method.decide(_FixedQ(q), _step(masks), torch.ones(masks.shape[0], dtype=torch.bool), gen)
+    d = method.decide(_FixedQ(q), _step(masks), torch.ones(masks.shape[0], dtype=torch.bool), u)
     assert masks.gather(1, d.action[:, None]).all()
 
 

@@ -22,8 +22,8 @@ def _watch(trainer, check, vector_steps: int = 60):
     """Run the trainer, calling check(step, decision) on every decision; ε = 1 (random proposals) here."""
     decide = trainer.method.decide
 
-    def watched(learner, step, explore, generator):
-        d = decide(learner, step, explore, generator)
+    def watched(learner, step, explore, u):
+        d = decide(learner, step, explore, u)
         check(step, d)
         return d
 

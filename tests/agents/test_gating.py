@@ -162,7 +162,7 @@ def test_figure_2_example_under_the_numbered_rule():
 
 def test_random_expert_actions_are_uniform_inside_each_set():
     gen = torch.Generator().manual_seed(0)
-    acts = random_expert_actions(20_000, gen)
+    acts = random_expert_actions(torch.rand(20_000, 11, generator=gen))
     assert acts.shape == (20_000, 11)
     for e, s in enumerate(EXPERT_ACTION_SETS):
         counts = torch.bincount(acts[:, e], minlength=4).float() / acts.shape[0]

@@ -14,7 +14,7 @@ class RandomSafe:
 
     layer_options: dict = {}
 
-    def decide(self, learner, step, explore, generator):
+    def decide(self, learner, step, explore, u):
         action, expert = explore_gate(step.primary.mask, torch.Generator().manual_seed(0))
         return Decision(action, expert, None)
 
