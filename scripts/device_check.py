@@ -43,7 +43,8 @@ def plan(smoke: bool) -> list[dict]:
         if compiled:  # training before the compiled sims: compiling may eat the rest of the budget
             for how in ("eager", "compiled"):
                 for seeds in (1, 10):
-                    parts.append({"name": train_part(seeds, how), "cap_s": 90 if how == "eager" else 150,
+                    # compiled: the whole vector step is one graph (world, rules, unrolled update rounds)
+                    parts.append({"name": train_part(seeds, how), "cap_s": 90 if how == "eager" else 240,
                                   "args": ["--part", "train", "--seeds", str(seeds), "--steps", "1" if smoke else "40"]
                                   + ["--compiled"] * (how == "compiled")})
         for sc, tr, adv, envs in sizes:
