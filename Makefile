@@ -24,8 +24,13 @@ setup: $(STAMP)
 run: $(STAMP)
 	$(BIN)/highway-srl demo --out $(OUT)
 
+# test workers (pytest-xdist): one per core, at most 4 (a core count seen through a container's CPU quota
+# can be the host's); each test file runs on one worker, so a file's shared fixture (a study, a trained run)
+# is built once. `make test TEST_WORKERS=1` runs them in one process.
+TEST_WORKERS ?= $(shell n=$$(nproc 2>/dev/null || echo 1); [ $$n -gt 4 ] && n=4; echo $$n)
+
 test: $(VENV)/.extras
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile
 
 bench: $(STAMP)
 	$(BIN)/highway-srl bench sim --scenario two-lane --traffic C --envs 4096 --steps 200
