@@ -68,6 +68,7 @@ def test_ray_executor_finishes_the_smoke_study_on_a_local_two_cpu_ray(smoke, tmp
     shutil.copytree(root, copy)
     for gone in ("runs/exit/moe-rm-srl", "runs/adv-two-lane/moe-rm-srl-no_rm"):
         shutil.rmtree(copy / gone)
+    (copy / "report.md").unlink()  # the Ray invocation must write its own
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
         state = reproduce("smoke", copy, executor="ray", methods=(OURS,), log=lambda s: None)
