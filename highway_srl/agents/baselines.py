@@ -202,20 +202,28 @@ def takeover_trigger(model, ego_vx: torch.Tensor, proposal: torch.Tensor, ttc_s:
     ttc1 = time_to_collision(gaps[:, 0], ego_vx - vx[:, 0])
     ttc2 = time_to_collision(gaps[:, 1], ego_vx - vx[:, 1])
     ttc4 = time_to_collision(gaps[:, 3], vx[:, 3] - ego_vx)
-    behind = torch.stack([ego_vx, ego_vx, vx[:, 3]], 1).clamp(min=0.0)  # speed of the car behind gaps 1, 2, 4
-    short = (gaps[:, [0, 1, 3]] < TAKEOVER_GAP_M + headway_s * behind) & (headway_s > 0)  # (B, 3)
+    ego_behind = ego_vx.clamp(min=0.0)  # the ego is the car behind gaps 1 and 2, SV4 behind gap 4
+    short1 = short_headway(gaps[:, 0], ego_behind, headway_s)
+    short2 = short_headway(gaps[:, 1], ego_behind, headway_s)
+    short4 = short_headway(gaps[:, 3], vx[:, 3].clamp(min=0.0), headway_s)
     changing = (proposal == LANE_CHANGE) | (model.t_id != model.lanes.c_id)
-    own = (ttc1 < ttc_s) | short[:, 0]
-    lateral = (torch.minimum(ttc2, ttc4) < ttc_s) | short[:, 1] | short[:, 2]
+    own = (ttc1 < ttc_s) | short1
+    lateral = (torch.minimum(ttc2, ttc4) < ttc_s) | short2 | short4
     return own | (changing & lateral)
+
+
+def short_headway(gap_m: torch.Tensor, behind_mps: torch.Tensor, headway_s: float) -> torch.Tensor:
+    """(B,) bool: a bumper gap shorter than TAKEOVER_GAP_M + headway_s x the speed of the car behind it (m,
+    m/s, s); never for headway_s <= 0 (the trigger is then the time to collision alone)."""
+    return (gap_m < TAKEOVER_GAP_M + headway_s * behind_mps) & (headway_s > 0)
 
 
 class ETRL(SingleDQN):
     """Expert takeover (§4.2: "activates a rule-based expert (implemented via the IDM) to override unsafe
     behaviors"): the DQN proposes (ε-greedy over A*) and executes, unless the takeover trigger fires (a time
-    to collision below TAKEOVER_TTC_S, `takeover_trigger`); then the rule-based IDM driver's action executes
-    instead, and the DQN learns from what executed. Table 1 is not consulted for the trigger: a proposal it
-    forbids runs when nothing is close. Option takeover_ttc_s: the threshold (s)."""
+    to collision below TAKEOVER_TTC_S or a time headway below TAKEOVER_HEADWAY_S, `takeover_trigger`); then
+    the rule-based IDM driver's action executes instead, and the DQN learns from what executed. Table 1 is not consulted for the trigger: a proposal it
+    forbids runs when nothing is close. Options takeover_ttc_s, takeover_headway_s: the thresholds (s)."""
 
     name, view, out_dim, shielded, reward_kind = "et-rl", "mapped", 4, False, "speed"
     # the layer holds a change under way (the SafetyLayer default); the expert is told so, or it would ask
