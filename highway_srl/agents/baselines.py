@@ -318,7 +318,7 @@ class LMRL(SingleDQN):
             if self.episode_cost is None:
                 self.episode_cost = torch.zeros(batch, device=device)
 
-    def after_step(self, trainer, events, cost, done) -> None:
+    def after_step(self, trainer, cost, done) -> None:
         """Dual ascent: once per vector step in which episodes of a seed ended, λ_seed moves by
         LAMBDA_LR x (mean cost of those episodes - COST_LIMIT)."""
         if self.episode_cost is None or self.episode_cost.shape != cost.shape:

@@ -94,8 +94,9 @@ class Method:
         static form keeps whatever state the method carries on the device from the start (a traced step
         then sees the same tensors every step)."""
 
-    def after_step(self, trainer, events, cost, done) -> None:
-        pass
+    def after_step(self, trainer, cost, done) -> None:
+        """Called after each vector step's updates with its cost signal (B,) (None for methods without one)
+        and the envs whose episode ended (B,) bool."""
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         return {}

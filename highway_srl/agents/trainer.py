@@ -51,9 +51,11 @@ class TrainConfig:
     # 2-core machine, 51.8 env-steps/s compact vs 3.9 static (docs/benchmarks.md). The two draw different
     # samples (so different numbers), the same rate and semantics.
     static: bool | None = None
-    # torch.compile the static vector step as one graph (compile_vector_step): False, True (CUDA graphs on
-    # CUDA), or a torch.compile mode or backend name (tests: "aot_eager")
+    # torch.compile the static vector step (compile_vector_step): False, True (CUDA graphs on CUDA), or a
+    # torch.compile mode or backend name (tests: "aot_eager"); as three graphs (the step, one update round
+    # called per round, the method's tail) or, compile_unrolled, one graph with the rounds unrolled
     compile: bool | str = False
+    compile_unrolled: bool = False
     dqn: DQNConfig = field(default_factory=DQNConfig)
     options: dict = field(default_factory=dict)  # method-specific switches (ablations)
 
@@ -152,7 +154,7 @@ class Trainer:
     (ceil(replay_ratio x envs): the most one member can be owed), each on its own batch. Nothing in the
     static step reads the device (the rule layer and the methods run in their static forms too), and its
     random numbers are drawn before it (draw), so vector_step is one graph with no break
-    (tests/agents/test_compiled_training.py), which config.compile compiles whole (compile_vector_step).
+    (tests/agents/test_compiled_training.py), which config.compile compiles (compile_vector_step).
 
     In both, finished episodes wait on the device (FinishedEpisodes) and are read every drain_every vector
     steps (step returns them then) or by drain(); state_dict needs them drained (train drains before each
@@ -165,7 +167,7 @@ class Trainer:
         self.num_seeds = len(cfg.seeds)
         self.batch = cfg.envs * self.num_seeds
         env_seeds = [s * 1_000_003 + e for s in cfg.seeds for e in range(cfg.envs)]
-        # compiled, the world's step is traced into the trainer's one graph (compile_vector_step), not on its own
+        # compiled, the world's step is traced into the trainer's graphs (compile_vector_step), not on its own
         self.world = World(cfg.scenario, cfg.traffic, cfg.adversarial, self.batch, cfg.device, env_seeds,
                            adversary=cfg.adversary)
         self.device = self.world.device
@@ -201,7 +203,7 @@ class Trainer:
         self.static_rounds = per_step if self.trained.numel() else 0
         self.method.start(self.batch, self.device, self.static)
         self._view = self.layer.observe(self.world)
-        self.run_step = compile_vector_step(self, cfg.compile) if cfg.compile else self.vector_step
+        self.run_step = compile_vector_step(self, cfg.compile, cfg.compile_unrolled) if cfg.compile else self.vector_step
 
     @property
     def current(self):
@@ -242,6 +244,20 @@ class Trainer:
     def vector_step(self, draws: Draws) -> None:
         """One vector step at the given draws, all but the host's step count (step). The static form reads
         nothing back and no Python number that changes from step to step: one graph (compile_vector_step)."""
+        if self.static:
+            masks, cost, done = self.collect_static(draws)
+            for i in range(0 if masks is None else masks.shape[0]):  # round i: one batch per member owed > i
+                self.static_round(draws.update[i], masks[i])
+        else:
+            acted, cost, done = self.collect(draws)
+            if draws.learn:
+                self._update(acted)
+        self.method.after_step(self, cost, done)
+
+    def collect(self, draws: Draws) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
+        """The vector step up to its updates: act, step the world, store, account, reset. Returns the member
+        that acted in each env (B,) and the method's after_step arguments: the cost signal (B,) or None, and
+        the envs whose episode ended (B,) bool."""
         cfg, world, layer = self.config, self.world, self.layer
         cur = layer.observe(world) if self.static else self.current
         t = policy_step(self.method, self.learner, world, layer, cur, draws.explore, draws.act, self.stats, train=True)
@@ -264,9 +280,21 @@ class Trainer:
                 layer.reset(done)
                 nxt = layer.observe(world)
             self._view = nxt
-        if draws.learn:
-            self._update(decision.member, draws.update)
-        self.method.after_step(self, events, t.cost, done)
+        return decision.member, t.cost, done
+
+    def collect_static(self, draws: Draws) -> tuple[torch.Tensor | None, torch.Tensor | None, torch.Tensor]:
+        """The static form's collect with the owed updates turned into the rounds' masks: (rounds, K) bool,
+        round i updates the trained members owed more than i steps (None when the step does not update);
+        then the cost and done of collect. The first graph of the split compiled step (compile_vector_step)."""
+        acted, cost, done = self.collect(draws)
+        masks = self.round_masks(acted, draws.update.shape[0]) if draws.learn and draws.update is not None else None
+        return masks, cost, done
+
+    def round_masks(self, acted: torch.Tensor, rounds: int) -> torch.Tensor:
+        """(rounds, K) bool: round i of the static updates steps the trained members owed more than i
+        steps after a vector step in which acted (B,) names each env's acting member (owed_updates)."""
+        need = self.owed_updates(acted)[self.trained]
+        return need > torch.arange(rounds, device=need.device)[:, None]
 
     def drain(self) -> list[Episode]:
         """The finished episodes not yet read, in the order they ended (one host read)."""
@@ -304,26 +332,22 @@ class Trainer:
         members = updates.nonzero().squeeze(1)
         return members, updates[members]
 
-    def _update(self, acted: torch.Tensor, u: torch.Tensor | None) -> None:
-        """The updates after a vector step in which acted (B,) names each env's acting member. Static form:
-        every trained member takes len(u) rounds under a mask, sampling at u (rounds, K, batch) (None: the
-        method trains no member); compact: the owed members, sampled with the generator."""
+    def _update(self, acted: torch.Tensor) -> None:
+        """The compact form's updates after a vector step in which acted (B,) names each env's acting
+        member: the owed members, sampled with the generator. (The static form: collect_static's masks,
+        static_round.)"""
         cfg = self.config
-        if self.static:
-            if u is None:
-                return
-            members = self.trained
-            need = self.owed_updates(acted)[members]
-            for i in range(u.shape[0]):  # round i: every member owed more than i steps, one batch each
-                mask = need > i
-                self.update_log.add(UpdateStats(*self.update_round(members, u[i], mask)), mask)
-            return
         members, updates = self.update_counts(acted)
         rounds = int(updates.max()) if updates.numel() else 0
         for i in range(rounds):  # round i: every member owed more than i steps, one batch each
             take = members[updates > i]
             batch = self.replay.sample(take, cfg.dqn.batch_size, self.gen)
             self.update_log.add(self.method.update(self.learner, take, batch))
+
+    def static_round(self, u: torch.Tensor, mask: torch.Tensor) -> None:
+        """One round of the static form's updates: every trained member samples its buffer at u (K, batch)
+        and steps where mask (K,) is True; their statistics go to the update log."""
+        self.update_log.add(UpdateStats(*self.update_round(self.trained, u, mask)), mask)
 
     def update_round(self, members: torch.Tensor, u: torch.Tensor, mask: torch.Tensor) -> tuple:
         """One static update round: members (K,) each sample their buffer at u (K, batch) and step where
@@ -372,38 +396,70 @@ class Trainer:
         self._view = self.layer.observe(self.world)
 
 
-def compile_vector_step(trainer: Trainer, how: bool | str):
-    """trainer.vector_step as one torch.compile graph with no break (how: sim.world.compile_options), the
-    update rounds unrolled in it; at most two graphs are compiled (Draws.learn and whether Draws.update is
-    None are guarded on).
+def compile_vector_step(trainer: Trainer, how: bool | str, unrolled: bool = False):
+    """trainer.vector_step as torch.compile graphs with no break (how: sim.world.compile_options), the same
+    numbers as the eager static step:
 
-    Under CUDA graphs the graph's outputs are overwritten by its next replay, and a replay writes in place
-    only into tensors marked static: every state tensor (world, rule layer, learner, replay, statistics,
-    method) is marked so before each call, and one the step replaced by a new tensor (an output) is copied
-    back into the tensor it replaced, so that the state keeps its addresses and no output outlives its call."""
+    split (the default): the step up to its updates (Trainer.collect_static), one update round
+    (Trainer.static_round, called once per round: the rounds share one graph) and the method's after_step
+    where it has one. The compile time is that of one round, whatever the replay ratio: unrolled, 16 rounds
+    (16 envs at Algorithm 1's rate) made the graph 16 updates long, and tracing alone took minutes per round
+    on the CPU (docs/benchmarks.md).
+    unrolled: one graph, the rounds unrolled in it (one graph launch per step; a compile time that grows
+    with the rounds). At most two versions of the first graph are compiled (Draws.learn and whether
+    Draws.update is None are guarded on).
+
+    Under CUDA graphs a graph's outputs are overwritten by later replays, and a replay writes in place only
+    into tensors marked static: every state tensor (world, rule layer, learner, replay, statistics, method)
+    is marked so before each call, and one the graph replaced by a new tensor (an output) is copied back
+    into the tensor it replaced, so that the state keeps its addresses; the outputs the split step passes
+    on are used or copied before the next replay."""
     opts = compile_options(how, trainer.device)
-    graph = torch.compile(trainer.vector_step, **opts)
-    if not uses_cuda_graphs(opts, trainer.device):
-        return graph
+    cuda_graphs = uses_cuda_graphs(opts, trainer.device)
+    call = state_keeping_call(trainer) if cuda_graphs else (lambda graph, *args: graph(*args))
+    if unrolled:
+        whole = torch.compile(trainer.vector_step, **opts)
+        return lambda draws: call(whole, draws)
+    collect = torch.compile(trainer.collect_static, **opts)
+    one_round = torch.compile(trainer.static_round, **opts)
+    method = trainer.method
+    tail = torch.compile(method.after_step, **opts) if type(method).after_step is not Method.after_step else None
+
+    def step(draws: Draws) -> None:
+        masks, cost, done = call(collect, draws)
+        if cuda_graphs and tail is not None:  # kept past the rounds' replays
+            cost, done = (None if cost is None else cost.clone()), done.clone()
+        for i in range(0 if masks is None else masks.shape[0]):
+            call(one_round, draws.update[i], masks[i])
+        if tail is not None:
+            call(tail, trainer, cost, done)
+
+    return step
+
+
+def state_keeping_call(trainer: Trainer):
+    """call(graph, *args): graph(*args) replayed as a CUDA graph with the trainer's state tensors marked
+    static and every state tensor the graph replaced copied back into the one it replaced."""
     # the state's attributes as the trainer starts (an attribute the step adds, such as ET-RL's analysis
     # tensors, is an output the next step does not read)
     names = [[name for name, value in vars(owner).items() if isinstance(value, torch.Tensor)]
              for owner in state_owners(trainer)]
 
-    def replay(draws: Draws) -> None:
+    def call(graph, *args):
         held = [(owner, name, getattr(owner, name)) for owner, keys in zip(state_owners(trainer), names)
                 for name in keys]
         for tensor in [t for _, _, t in held] + in_place_state(trainer):
             torch._dynamo.mark_static_address(tensor)
         torch.compiler.cudagraph_mark_step_begin()
-        graph(draws)
+        out = graph(*args)
         for owner, name, tensor in held:
             new = getattr(owner, name)
             if new is not tensor:
                 tensor.copy_(new)
                 setattr(owner, name, tensor)
+        return out
 
-    return replay
+    return call
 
 
 def state_owners(trainer: Trainer) -> list:

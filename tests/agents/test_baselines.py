@@ -61,12 +61,11 @@ def test_lagrange_multiplier_rises_above_the_cost_limit_and_falls_back_below_it(
 def test_lm_rl_dual_ascent_runs_on_finished_episodes_per_seed():
     method = LMRL("two-lane", 2, {"lambda_init": 1.0})
     b = 4  # envs 0, 1 belong to seed 0; envs 2, 3 to seed 1
-    events = SimpleNamespace(collision=torch.zeros(b, dtype=torch.bool))
     not_done = torch.zeros(b, dtype=torch.bool)
     for _ in range(30):  # seed 0 violates the rules every step, seed 1 never
-        method.after_step(None, events, torch.tensor([1.0, 1.0, 0.0, 0.0]), not_done)
+        method.after_step(None, torch.tensor([1.0, 1.0, 0.0, 0.0]), not_done)
     assert torch.equal(method.lam, torch.tensor([1.0, 1.0])), "λ only moves when episodes end"
-    method.after_step(None, events, torch.tensor([1.0, 1.0, 0.0, 0.0]), torch.tensor([True, False, True, False]))
+    method.after_step(None, torch.tensor([1.0, 1.0, 0.0, 0.0]), torch.tensor([True, False, True, False]))
     assert method.lam[0] > 1.0 and method.lam[1] < 1.0  # 31 > COST_LIMIT; 0 < COST_LIMIT
     assert method.episode_cost.tolist() == [0.0, 31.0, 0.0, 0.0]
 

@@ -1,5 +1,6 @@
 """The static training step compiled: the vector step (and the update round in it) is one graph with no break
-for every method and scene, and the compiled step follows the eager static step to float rounding."""
+for every method and scene, and the compiled step, split (the step, one round per call, the method's tail)
+or unrolled (one graph), follows the eager static step to float rounding."""
 
 from __future__ import annotations
 
@@ -67,12 +68,14 @@ def test_static_vector_step_is_one_graph_without_a_break_in_every_scene(scenario
     assert (explained.graph_count, explained.graph_break_count) == (1, 0), explained.break_reasons
 
 
-def _follow(how, steps: int, **kw) -> None:
-    eager, compiled = Trainer(_config(**kw), drain_every=4), Trainer(_config(compile=how, **kw), drain_every=4)
+def _follow(how, steps: int, unrolled: bool = False, **kw) -> None:
+    eager = Trainer(_config(**kw), drain_every=4)
+    compiled = Trainer(_config(compile=how, compile_unrolled=unrolled, **kw), drain_every=4)
     episodes = [[], []]
     for i in range(steps):
         episodes[0] += eager.step()
-        # one graph for the whole run: nothing the step reads changes from step to step (a recompile is an error)
+        # the same graphs for the whole run: nothing the step reads changes from step to step (a recompile is
+        # an error; the first graph has a second version for the steps before learning_starts: none here)
         with torch._dynamo.config.patch(error_on_recompile=i > 0):
             episodes[1] += compiled.step()
     assert int(eager.learner.adam_step.sum()) > 0  # updates ran
@@ -81,15 +84,20 @@ def _follow(how, steps: int, **kw) -> None:
     assert torch.equal(compiled.learner.target_update_count, eager.learner.target_update_count)
     assert torch.equal(compiled.replay.storage["action"], eager.replay.storage["action"])
     assert torch.equal(compiled.usage, eager.usage) and torch.equal(compiled.world.state.lane, eager.world.state.lane)
+    torch.testing.assert_close(compiled.method.state_dict(), eager.method.state_dict())  # LM-RL's λ
     torch.testing.assert_close(compiled.world.state.x, eager.world.state.x)
     assert [(e.step, e.length, e.collision) for e in episodes[1]] == [(e.step, e.length, e.collision)
                                                                       for e in episodes[0]]
 
 
-@pytest.mark.parametrize("scenario, adversarial", [("two-lane", False), ("exit", True)])
-def test_compiled_vector_step_follows_the_eager_static_step(scenario, adversarial):
-    """Graph capture without code generation (aot_eager): the whole vector step, one graph."""
-    _follow("aot_eager", steps=36, scenario=scenario, adversarial=adversarial, traffic="C")
+@pytest.mark.parametrize("method, scenario, adversarial, unrolled", [
+    ("moe-rm-srl", "two-lane", False, False), ("moe-rm-srl", "exit", True, False),
+    ("lm-rl", "two-lane", False, False),  # a method with a tail (its dual ascent after the updates)
+    ("moe-rm-srl", "two-lane", False, True)])
+def test_compiled_vector_step_follows_the_eager_static_step(method, scenario, adversarial, unrolled):
+    """Graph capture without code generation (aot_eager)."""
+    _follow("aot_eager", steps=36, unrolled=unrolled, method=method, scenario=scenario, adversarial=adversarial,
+            traffic="C")
 
 
 def test_compile_needs_the_static_step():

@@ -49,7 +49,10 @@ def test_static_form_gives_each_member_exactly_the_steps_it_is_owed_under_a_mask
     trainer.replay.size[:] = 10
     acted = torch.tensor([0, 0, 0, 5, -1, 3, 0, 5]) if method == "moe-rm-srl" else torch.zeros(8, dtype=torch.long)
     before = trainer.learner.adam_step.clone()
-    trainer._update(acted, torch.rand(trainer.static_rounds, trainer.trained.shape[0], trainer.config.dqn.batch_size))
+    u = torch.rand(trainer.static_rounds, trainer.trained.shape[0], trainer.config.dqn.batch_size)
+    masks = trainer.round_masks(acted, trainer.static_rounds)
+    for i in range(trainer.static_rounds):
+        trainer.static_round(u[i], masks[i])
     stepped = (trainer.learner.adam_step - before).long().tolist()
     if method == "moe-rm-srl":
         assert stepped == [4, 0, 0, 1, 0, 2, 0, 0, 0, 0, 0]  # as the compact form: 7 steps, 0: 4, 3: 1, 5: 2
