@@ -427,8 +427,8 @@ def compile_vector_step(trainer: Trainer, how: bool | str, unrolled: bool = Fals
 
     def step(draws: Draws) -> None:
         masks, cost, done = call(collect, draws)
-        if cuda_graphs and tail is not None:  # kept past the rounds' replays
-            cost, done = (None if cost is None else cost.clone()), done.clone()
+        if cuda_graphs:  # the next replay may reuse the outputs' memory: the rounds and the tail read copies
+            masks, cost, done = (None if t is None else t.clone() for t in (masks, cost, done))
         for i in range(0 if masks is None else masks.shape[0]):
             call(one_round, draws.update[i], masks[i])
         if tail is not None:
