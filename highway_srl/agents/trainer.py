@@ -396,7 +396,7 @@ class Trainer:
         self._view = self.layer.observe(self.world)
 
 
-def compile_vector_step(trainer: Trainer, how: bool | str, unrolled: bool = False):
+def compile_vector_step(trainer: Trainer, how: bool | str, unrolled: bool = False, keep_state: bool | None = None):
     """trainer.vector_step as torch.compile graphs with no break (how: sim.world.compile_options), the same
     numbers as the eager static step:
 
@@ -413,9 +413,10 @@ def compile_vector_step(trainer: Trainer, how: bool | str, unrolled: bool = Fals
     into tensors marked static: every state tensor (world, rule layer, learner, replay, statistics, method)
     is marked so before each call, and one the graph replaced by a new tensor (an output) is copied back
     into the tensor it replaced, so that the state keeps its addresses; the outputs the split step passes
-    on are used or copied before the next replay."""
+    on are used or copied before the next replay. keep_state: that bookkeeping (None: where CUDA graphs
+    replay; the tests run it on the CPU, where it must change nothing)."""
     opts = compile_options(how, trainer.device)
-    cuda_graphs = uses_cuda_graphs(opts, trainer.device)
+    cuda_graphs = uses_cuda_graphs(opts, trainer.device) if keep_state is None else keep_state
     call = state_keeping_call(trainer) if cuda_graphs else (lambda graph, *args: graph(*args))
     if unrolled:
         whole = torch.compile(trainer.vector_step, **opts)

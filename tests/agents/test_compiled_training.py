@@ -100,6 +100,28 @@ def test_compiled_vector_step_follows_the_eager_static_step(method, scenario, ad
             traffic="C")
 
 
+def test_cuda_graph_bookkeeping_keeps_the_compiled_step_exact():
+    """The CUDA-graph path's bookkeeping (state marked static, replaced state tensors copied back into the
+    ones they replaced, the first graph's outputs copied) run on the CPU with graph capture: the trainer
+    keeps its tensors' identities and follows the eager static step (LM-RL: a method with a tail)."""
+    from highway_srl.agents.trainer import compile_vector_step, state_owners
+
+    kw = {"method": "lm-rl", "traffic": "C"}
+    eager, compiled = Trainer(_config(**kw), drain_every=4), Trainer(_config(**kw), drain_every=4)
+    compiled.run_step = compile_vector_step(compiled, "aot_eager", keep_state=True)
+    before = {(id(owner), name): value for owner in state_owners(compiled) for name, value in vars(owner).items()
+              if isinstance(value, torch.Tensor)}
+    for _ in range(12):
+        eager.step()
+        compiled.step()
+    after = {(id(owner), name): value for owner in state_owners(compiled) for name, value in vars(owner).items()
+             if isinstance(value, torch.Tensor)}
+    assert all(after[key] is value for key, value in before.items())  # same tensor objects, written in place
+    torch.testing.assert_close(compiled.learner.online.flat, eager.learner.online.flat, rtol=1e-4, atol=1e-5)
+    torch.testing.assert_close(compiled.method.state_dict(), eager.method.state_dict())
+    assert torch.equal(compiled.world.state.lane, eager.world.state.lane)
+
+
 def test_compile_needs_the_static_step():
     with pytest.raises(ValueError, match="static"):
         Trainer(_config(compile="aot_eager", static=False))
