@@ -6,7 +6,8 @@
 Parts, in order: the GPU tests; the simulator eager at 4,096 / 65,536 / 262,144 envs (two-lane C) and
 level F, merge, adversarial exit at 65,536; training MoE-RM-SRL at 1 and 10 seeds (16 envs each) at
 Algorithm 1's update rate (one gradient step per env step), eager (the static, sync-free step: the CUDA
-default) and compiled (CUDA graphs); the simulator compiled, same sizes. Each part runs in its own process
+default) and compiled (CUDA graphs, the split step: docs/benchmarks.md); the simulator compiled, same sizes;
+last, if the budget is left, 1 seed compiled with the update rounds unrolled into one graph. Each part runs in its own process
 with a time limit from the overall budget, so a failure, a hang or a part that does not fit still leaves
 the others' figures and the JSON. Projections: the paper run (5e5 env steps, one seed) and the whole study
 (43 jobs x 10 seeds x 5e5 steps, the 10 seeds batched), from the eager and from the compiled training.
@@ -43,7 +44,7 @@ def plan(smoke: bool) -> list[dict]:
         if compiled:  # training before the compiled sims: compiling may eat the rest of the budget
             for how in ("eager", "compiled"):
                 for seeds in (1, 10):
-                    # compiled: the whole vector step is one graph (world, rules, unrolled update rounds)
+                    # compiled: the split step (the step, one round per call, the tail: compile_vector_step)
                     parts.append({"name": train_part(seeds, how), "cap_s": 90 if how == "eager" else 240,
                                   "args": ["--part", "train", "--seeds", str(seeds), "--steps", "1" if smoke else "40"]
                                   + ["--compiled"] * (how == "compiled")})
@@ -52,6 +53,10 @@ def plan(smoke: bool) -> list[dict]:
             args = ["--part", "sim", "--scenario", sc, "--traffic", tr, "--envs", str(envs), "--steps", steps]
             args += ["--adversarial"] * adv + ["--compiled"] * compiled
             parts.append({"name": name, "cap_s": 200 if compiled else 60, "args": args})
+    if not smoke:  # the rounds unrolled into one graph (TrainConfig.compile_unrolled), against the split
+        # default: one replay per step instead of 1 + rounds; last, as it compiles longest
+        parts.append({"name": train_part(1, "compiled") + "-unrolled", "cap_s": 240,
+                      "args": ["--part", "train", "--seeds", "1", "--steps", "40", "--compiled", "--unrolled"]})
     return parts
 
 
@@ -74,7 +79,7 @@ def run_part(args) -> dict:
         return bench_sim(args.scenario, args.traffic, args.envs, args.steps, device, args.adversarial,
                          warmup=1 if args.cpu_smoke else 10, compile=how)
     if args.part == "train":
-        return bench_training(args.seeds, args.steps, device, args.cpu_smoke, args.compiled)
+        return bench_training(args.seeds, args.steps, device, args.cpu_smoke, args.compiled, args.unrolled)
     raise ValueError(f"unknown part {args.part!r}")
 
 
@@ -82,7 +87,7 @@ def train_part(seeds: int, how: str) -> str:
     return f"train-moe-rm-srl-{seeds}-seeds" + ("-compiled" if how == "compiled" else "")
 
 
-def bench_training(seeds: int, steps: int, device: str, smoke: bool, compiled: bool) -> dict:
+def bench_training(seeds: int, steps: int, device: str, smoke: bool, compiled: bool, unrolled: bool = False) -> dict:
     """Env-steps/s of MoE-RM-SRL training, TRAIN_ENVS envs per seed, at one gradient step per env step
     (replay_ratio 1), in the static step: eager or compiled (smoke: graph capture only, aot_eager).
     setup_s: building, filling the buffers to a batch and the warm-up steps, compilation included."""
@@ -92,11 +97,12 @@ def bench_training(seeds: int, steps: int, device: str, smoke: bool, compiled: b
     # buffers of 16 rows (not 100,000 rows x 11 members x 10 seeds: 3.4 GB), or the 10 seeds cost minutes
     envs, batch, capacity = (1, 2, 16) if smoke else (TRAIN_ENVS, 256, None)
     how = ("aot_eager" if smoke else True) if compiled else False
-    form = bench_train_form("moe-rm-srl", "two-lane", "C", envs, steps, device, seeds, how, True, batch, capacity)
+    form = bench_train_form("moe-rm-srl", "two-lane", "C", envs, steps, device, seeds, how, True, batch, capacity,
+                            unrolled)
     return {"method": "moe-rm-srl", "envs": envs, "seeds": seeds, "vector_steps": steps,
             "wall_s": form["wall_s"], "setup_s": form["warmup_s"], "env_steps_per_s": form["env_steps_per_s"],
             "env_steps_per_s_with_compile": form["env_steps_per_s_with_compile"], "compile": how, "static": True,
-            "replay_ratio": 1.0, "batch_size": batch}
+            "replay_ratio": 1.0, "batch_size": batch, "unrolled": unrolled}
 
 
 def projections(results: dict) -> dict:
@@ -132,6 +138,7 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument(name, type=int, help=argparse.SUPPRESS)
     p.add_argument("--adversarial", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--compiled", action="store_true", help=argparse.SUPPRESS)
+    p.add_argument("--unrolled", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     sys.path.insert(0, str(ROOT))
 

@@ -378,15 +378,16 @@ def bench_train(method: str, scenario: str, traffic: str, envs: int, steps: int,
 
 def bench_train_form(method: str, scenario: str, traffic: str, envs: int, steps: int, device: str, seeds: int,
                      compile: bool | str, static: bool | None, batch_size: int = 256,
-                     buffer_capacity: int | None = None) -> dict:
+                     buffer_capacity: int | None = None, unrolled: bool = False) -> dict:
     """One form of bench_train: {device, static, compile, warmup_s, wall_s, env_steps_per_s,
     env_steps_per_s_with_compile}. batch_size: Table 2's 256, buffer_capacity: DQNConfig's per member
-    (scripts/device_check.py's smoke run: less of both)."""
+    (scripts/device_check.py's smoke run: less of both); unrolled: TrainConfig.compile_unrolled."""
     from highway_srl.agents.dqn import DQNConfig
 
     start = time.perf_counter()
     cfg = TrainConfig(method=method, scenario=scenario, traffic=traffic, envs=envs, seeds=tuple(range(seeds)),
                       device=device, steps=10**9, replay_ratio=1.0, static=static, compile=compile,
+                      compile_unrolled=unrolled,
                       dqn=DQNConfig(learning_starts=0, batch_size=batch_size,
                                     buffer_capacity=buffer_capacity or DQNConfig.buffer_capacity))
     trainer = Trainer(cfg, drain_every=DRAIN_EVERY)
