@@ -7,9 +7,9 @@ Parts, in order: the GPU tests; the simulator eager at 4,096 / 65,536 / 262,144 
 level F, merge, adversarial exit at 65,536; training MoE-RM-SRL at 1 and 10 seeds (16 envs each) at
 Algorithm 1's update rate (one gradient step per env step), eager (the static, sync-free step: the CUDA
 default) and compiled (CUDA graphs, the split step: docs/benchmarks.md); the simulator compiled, same sizes;
-last, if the budget is left, 1 seed compiled with the update rounds unrolled into one graph. Each part runs in its own process
-with a time limit from the overall budget, so a failure, a hang or a part that does not fit still leaves
-the others' figures and the JSON. Projections: the paper run (5e5 env steps, one seed) and the whole study
+last, if the budget is left, 1 seed compiled with the update rounds unrolled into one graph. Each part runs
+in its own process with a time limit from the overall budget, so a failure, a hang or a part that does not
+fit still leaves the others' figures and the JSON. Projections: the paper run (5e5 env steps, one seed) and the whole study
 (43 jobs x 10 seeds x 5e5 steps, the 10 seeds batched), from the eager and from the compiled training.
 
 Without a CUDA device it falls back to the smoke run (a note on stderr, "cpu_smoke": true in the JSON).

@@ -222,8 +222,9 @@ class ETRL(SingleDQN):
     """Expert takeover (§4.2: "activates a rule-based expert (implemented via the IDM) to override unsafe
     behaviors"): the DQN proposes (ε-greedy over A*) and executes, unless the takeover trigger fires (a time
     to collision below TAKEOVER_TTC_S or a time headway below TAKEOVER_HEADWAY_S, `takeover_trigger`); then
-    the rule-based IDM driver's action executes instead, and the DQN learns from what executed. Table 1 is not consulted for the trigger: a proposal it
-    forbids runs when nothing is close. Options takeover_ttc_s, takeover_headway_s: the thresholds (s)."""
+    the rule-based IDM driver's action executes instead, and the DQN learns from what executed. Table 1 is
+    not consulted for the trigger: a proposal it forbids runs when nothing is close. Options takeover_ttc_s,
+    takeover_headway_s: the thresholds (s)."""
 
     name, view, out_dim, shielded, reward_kind = "et-rl", "mapped", 4, False, "speed"
     # the layer holds a change under way (the SafetyLayer default); the expert is told so, or it would ask

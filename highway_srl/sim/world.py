@@ -283,7 +283,7 @@ def compile_options(how: bool | str, device: torch.device) -> dict:
     CPU), a torch.compile mode, or a backend name ("eager", "aot_eager": graph capture without code
     generation, for checks). On the CPU, True also makes inductor's wrapper C++ (cpp_wrapper): the graph's
     kernels are then called from C++ instead of a generated Python function, which made one env's compiled
-    step 1.2-1.5x faster (docs/benchmarks.md), for a longer compilation."""
+    step 1.2-1.4x faster (docs/benchmarks.md), for a longer compilation."""
     mode, backend, options = None, "inductor", None
     if how is True:
         if device.type == "cuda":
