@@ -10,6 +10,8 @@ before it (Trainer.draw), so that the static step is one traced graph (Trainer.v
 
 from __future__ import annotations
 
+import functools
+
 import math
 from dataclasses import asdict, dataclass, field
 
@@ -25,7 +27,7 @@ from highway_srl.constants import OBS_DIM
 from highway_srl.rules import control_profile
 from highway_srl.rules.episode import RESULT_FIELDS, EpisodeStats, FinishedEpisodes, episode_row
 from highway_srl.sim import World
-from highway_srl.sim.world import ADVERSARIES, compile_options, uses_cuda_graphs
+from highway_srl.sim.world import ADVERSARIES, WARM_CALLS, call_settled, compile_options, uses_cuda_graphs
 from highway_srl.sim.state import WorldState
 
 
@@ -418,16 +420,34 @@ def compile_vector_step(trainer: Trainer, how: bool | str, unrolled: bool = Fals
     replay; the tests run it on the CPU, where it must change nothing)."""
     opts = compile_options(how, trainer.device)
     cuda_graphs = uses_cuda_graphs(opts, trainer.device) if keep_state is None else keep_state
-    call = state_keeping_call(trainer) if cuda_graphs else (lambda graph, *args: graph(*args))
+    keeping = state_keeping_call(trainer) if cuda_graphs else (lambda graph, *args: graph(*args))
+    # every graph has all its versions once the step learns (Draws.learn never turns False again, and with it
+    # whether Draws.update is None is fixed): after WARM_CALLS learning steps, only the guards that tell
+    # versions apart are checked (sim.world.call_settled)
+    learning_steps = 0
+
+    def call(graph, *args):
+        return keeping(functools.partial(call_settled, graph) if learning_steps > WARM_CALLS else graph, *args)
+
+    def counted(draws: Draws) -> None:
+        nonlocal learning_steps
+        learning_steps += bool(draws.learn)
+
     if unrolled:
         whole = torch.compile(trainer.vector_step, **opts)
-        return lambda draws: call(whole, draws)
+
+        def step_unrolled(draws: Draws) -> None:
+            counted(draws)
+            call(whole, draws)
+
+        return step_unrolled
     collect = torch.compile(trainer.collect_static, **opts)
     one_round = torch.compile(trainer.static_round, **opts)
     method = trainer.method
     tail = torch.compile(method.after_step, **opts) if type(method).after_step is not Method.after_step else None
 
     def step(draws: Draws) -> None:
+        counted(draws)
         masks, cost, done = call(collect, draws)
         if cuda_graphs:  # the next replay may reuse the outputs' memory: the rounds and the tail read copies
             masks, cost, done = (None if t is None else t.clone() for t in (masks, cost, done))

@@ -300,6 +300,30 @@ def compile_options(how: bool | str, device: torch.device) -> dict:
     return dict(fullgraph=True, mode=mode, backend=backend, dynamic=False, options=options)
 
 
+# A compiled graph's first WARM_CALLS calls (once all its versions exist) check every guard; later ones only
+# those that tell its versions apart (call_settled). CHECK_GUARDS = True: every call checks them all.
+WARM_CALLS = 2
+CHECK_GUARDS = False
+
+
+def call_settled(graph, *args):
+    """graph(*args), dynamo checking only the guards that tell graph's compiled versions apart
+    (torch.compiler.set_stance's skip_guard_eval_unsafe), for a graph whose every version has been compiled
+    and run: the callers (compiled_step, trainer.compile_vector_step) say when that is.
+
+    Why: dynamo checks every guard of a graph (each state tensor's metadata, each attribute the trace read) on
+    every call: 160-310 us a call on this CPU, and a compiled training step makes 17 calls (collect, 16
+    update rounds at 16 envs), about 2.7 ms of host time a step, more than its kernels on a GPU
+    (docs/benchmarks.md). Why it is safe here: every graph has static shapes and reads no Python value that
+    changes from call to call once its versions exist (the tests make a recompile an error, with
+    CHECK_GUARDS on); a graph called with a new kind of input would silently run an old version instead of
+    being recompiled, so nothing outside those callers should call this."""
+    if CHECK_GUARDS:
+        return graph(*args)
+    with torch.compiler.set_stance("default", skip_guard_eval_unsafe=True):
+        return graph(*args)
+
+
 def uses_cuda_graphs(options: dict, device: torch.device) -> bool:
     """Whether a graph compiled with these compile_options replays as CUDA graphs (its outputs are then
     overwritten by its next replay: copy or consume them first)."""
@@ -322,6 +346,7 @@ class compiled_step:  # noqa: N801 (used like a function: compiled_step(world, m
         self._step = torch.compile(self.pure_step, **opts)
         self._reset = torch.compile(self.pure_reset, **opts)
         self._step_reset = torch.compile(self.pure_step_reset, **opts)
+        self._calls = {}  # per graph: each has one version (the world's settings are fixed), warm after WARM_CALLS
 
     def pure_step(self, state: tuple, target_lane: torch.Tensor, target_speed: torch.Tensor):
         w = self.world
@@ -342,7 +367,9 @@ class compiled_step:  # noqa: N801 (used like a function: compiled_step(world, m
         """Run a compiled graph on the world's state; its new state is copied into the state's tensors."""
         if self.cuda_graphs:
             torch.compiler.cudagraph_mark_step_begin()
-        out = graph(astuple_shallow(self.world.state), *args)
+        calls = self._calls[graph] = self._calls.get(graph, 0) + 1
+        run = call_settled if calls > WARM_CALLS else (lambda g, *a: g(*a))
+        out = run(graph, astuple_shallow(self.world.state), *args)
         new, ev = out if graph is not self._reset else (out, None)
         torch._foreach_copy_(list(astuple_shallow(self.world.state)), list(new))
         if ev is not None:
