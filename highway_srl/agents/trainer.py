@@ -11,7 +11,6 @@ before it (Trainer.draw), so that the static step is one traced graph (Trainer.v
 from __future__ import annotations
 
 import functools
-
 import math
 from dataclasses import asdict, dataclass, field
 
