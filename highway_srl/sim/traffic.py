@@ -77,21 +77,6 @@ def sorted_order(x: torch.Tensor, order: torch.Tensor | None = None, static: boo
     return order
 
 
-def _scan(a: torch.Tensor, op, reverse: bool) -> torch.Tensor:
-    """Inclusive running op (torch.minimum / maximum) along the last dim (reverse: from the right).
-
-    torch.cummin / cummax, not log2(N) shifted steps: eager they are 2-3x faster at 4,096 envs and 5-19x
-    at one env, and torch.compile keeps them as one op, where it inlined each shifted step into the
-    next (2^log2(N) recomputations: 60 % of the compiled step at 4,096 envs, docs/benchmarks.md)."""
-    if op is torch.minimum:
-        run = lambda t: torch.cummin(t, -1).values  # noqa: E731
-    elif op is torch.maximum:
-        run = lambda t: torch.cummax(t, -1).values  # noqa: E731
-    else:
-        raise ValueError(f"no running form of {op!r}")
-    return run(a.flip(-1)).flip(-1) if reverse else run(a)
-
-
 _KEY = 128
 
 
@@ -105,8 +90,11 @@ def lane_leaders(occupancy: torch.Tensor, order: torch.Tensor) -> tuple[torch.Te
     occ = torch.gather(occupancy, 2, order_k).long()  # in sorted order
     key = torch.arange(N, device=order.device) * _KEY + order  # (B, N)
     none = _KEY * _KEY + N  # N modulo _KEY, above every key
-    # ahead[p] = the key of min{q > p : occ[q]}
-    ahead = _scan(none + occ * (key - none), torch.minimum, reverse=True)
+    # ahead[p] = the key of min{q > p : occ[q]}: a running min from the right. torch.cummin, not log2(N)
+    # shifted min steps: compiled, each shifted step was inlined into the next (2^5 recomputations at N = 25,
+    # 60 % of the compiled static step at 4,096 envs; docs/benchmarks.md); eager it is no slower at 4,096
+    # envs and 5x faster at one env
+    ahead = torch.cummin((none + occ * (key - none)).flip(-1), -1).values.flip(-1)
     ahead = torch.cat([ahead[..., 1:], torch.full_like(ahead[..., :1], none)], 2)
     return torch.empty_like(ahead).scatter_(2, order_k, ahead & (_KEY - 1)), occ
 
@@ -117,22 +105,23 @@ def follower_keys(occ_sorted: torch.Tensor, order: torch.Tensor) -> torch.Tensor
     n = order.shape[1]
     key = torch.arange(n, device=order.device) * _KEY + order
     none = n - _KEY  # N modulo _KEY, below every key
-    behind = _scan(none + occ_sorted * (key - none), torch.maximum, reverse=False)
+    behind = torch.cummax(none + occ_sorted * (key - none), -1).values  # a running max (see lane_leaders)
     return torch.cat([torch.full_like(behind[..., :1], none), behind[..., :-1]], 2)
 
 
 def followers_of(behind_keys: torch.Tensor, rank: torch.Tensor, k, b, i) -> torch.Tensor:
     """Nearest occupant behind vehicle i of env b in lane k (all (M,) long), N where there is none;
     behind_keys from follower_keys, rank from inverse_order."""
-    n_lanes, n_envs, n = behind_keys.shape
-    # flat index_select, not behind_keys[k, b, rank[b, i]]: advanced indexing with three index tensors
-    # takes a slow general path on the CPU
-    r = _take_flat(rank, b * n + i)
-    return _take_flat(behind_keys, (k * n_envs + b) * n + r) & (_KEY - 1)
+    _, n_envs, n = behind_keys.shape
+    # flat reads, not behind_keys[k, b, rank[b, i]]: advanced indexing with three index tensors takes a slow
+    # general path on the CPU
+    r = take_flat(rank, b * n + i)
+    return take_flat(behind_keys, (k * n_envs + b) * n + r) & (_KEY - 1)
 
 
-def _take_flat(t: torch.Tensor, flat: torch.Tensor) -> torch.Tensor:
-    """t's elements at flat (row-major) indices of any shape."""
+def take_flat(t: torch.Tensor, flat: torch.Tensor) -> torch.Tensor:
+    """t's elements at flat (row-major) indices of any shape (faster than advanced indexing with index
+    pairs or triples)."""
     return t.reshape(-1).index_select(0, flat.reshape(-1)).view(flat.shape)
 
 

@@ -41,6 +41,7 @@ from highway_srl.sim.traffic import (
     occupancy,
     pad,
     sorted_order,
+    take_flat,
 )
 
 DECISION_PERIOD = 8  # SVs reconsider lane changes once a second
@@ -179,11 +180,6 @@ def abort_unsafe_changes(s: WorldState, road: Road, nb: Neighbours, accel: torch
     put(s.target_lane, bb, ii, s.lane[bb, ii], sel)
 
 
-def _take(t: torch.Tensor, flat: torch.Tensor) -> torch.Tensor:
-    """Elements of a contiguous tensor at flat indices (faster than advanced indexing with index pairs)."""
-    return t.reshape(-1).index_select(0, flat)
-
-
 def _deciders(s: WorldState, road: Road):
     """The SVs due to decide this step: their indices idx (B, J), whether each may change at all (B, J)
     bool (centred, lane-changing style or a ramp intent, fast enough), and their lane, intent and
@@ -237,24 +233,24 @@ def mobil_lane_changes(s: WorldState, road: Road, tables: LaneTables, nb: Neighb
     d = torch.cat([torch.full_like(lane1, -1), torch.full_like(lane1, 1)])
     two = lambda t: torch.cat([t, t])  # noqa: E731
     bb2, flat, lane, intent, on_ramp_merge = two(bb), two(flat1), two(lane1), two(intent1), two(merge1)
-    x, v, v0, s0, alc = (two(_take(t, flat1)) for t in (s.x, s.v, s.v0, s.s0, s.lane_change))
-    a_cur = two(_take(accel, flat1))
+    x, v, v0, s0, alc = (two(take_flat(t, flat1)) for t in (s.x, s.v, s.v0, s.s0, s.lane_change))
+    a_cur = two(take_flat(accel, flat1))
     to = lane + d
     ok = tables.can_change(x, lane, to, v * LANE_CHANGE_TIME_S)
     ok &= (to < road.mainline_lanes) | (intent == EXIT_INTENT)  # only cars bound for the off-ramp enter it
     toc = to.clamp(0, k_lanes - 1)
     flat_k = toc * (b_envs * n) + flat
-    nl, nf = _take(nb.leader, flat_k), nb.follower(toc, bb2, two(ii))
+    nl, nf = take_flat(nb.leader, flat_k), nb.follower(toc, bb2, two(ii))
     row = bb2 * (n + 1)
-    nl_x, nl_v = _take(nb.x_pad, row + nl), _take(nb.v_pad, row + nl)
+    nl_x, nl_v = take_flat(nb.x_pad, row + nl), take_flat(nb.v_pad, row + nl)
     g_front = nl_x - x - VEHICLE_LENGTH_M
     wall = tables.drop_end_m[toc] - x - 0.5 * VEHICLE_LENGTH_M
     use_wall = wall < g_front
     a_new = idm_accel_fast(idm_free_term(v, v0), v, s0, torch.minimum(wall, g_front), torch.where(use_wall, 0.0, nl_v))
     has_nf = nf < n
     nf_flat = bb2 * n + nf.clamp(max=n - 1)
-    nf_x = torch.where(has_nf, _take(s.x, nf_flat), -FAR_M)
-    nf_v, nf_v0, nf_s0 = _take(s.v, nf_flat), _take(s.v0, nf_flat), _take(s.s0, nf_flat)
+    nf_x = torch.where(has_nf, take_flat(s.x, nf_flat), -FAR_M)
+    nf_v, nf_v0, nf_s0 = take_flat(s.v, nf_flat), take_flat(s.v0, nf_flat), take_flat(s.s0, nf_flat)
     nf_free = idm_free_term(nf_v, nf_v0)
     g_back = x - nf_x - VEHICLE_LENGTH_M
     a_nf_new = idm_accel_fast(nf_free, nf_v, nf_s0, g_back, v)
