@@ -5,7 +5,8 @@ that tell a graph's versions apart: sim.world.call_settled), alternated in one p
     python scripts/guard_overhead.py train   # MoE-RM-SRL, 16 envs, replay ratio 1, captured with aot_eager
 
 Prints one JSON line: steps/s of three alternated runs per setting and the guards' time per step (the torch
-profiler's "TorchDynamo Cache Lookup" self time). docs/benchmarks.md has the figures."""
+profiler's "TorchDynamo Cache Lookup" self time); train also the CUDA-graph bookkeeping's time a call
+(trainer.state_keeping_call). docs/benchmarks.md has the figures."""
 
 from __future__ import annotations
 
@@ -64,6 +65,15 @@ def main() -> None:
             out[f"guard_us_per_step_check_guards_{check}"] = guard_us_per_step(run, min(steps, 300))
     finally:
         world_module.CHECK_GUARDS = False
+    if args.what == "train":  # the CUDA-graph bookkeeping around each trainer call, on an empty graph
+        from highway_srl.agents.trainer import state_keeping_call
+
+        keeping = state_keeping_call(trainer)
+        keeping(lambda: None)  # the first call imports the CUDA-graph machinery
+        start = time.perf_counter()
+        for _ in range(2000):
+            keeping(lambda: None)
+        out["state_keeping_call_us"] = round((time.perf_counter() - start) / 2000 * 1e6, 1)
     print(json.dumps(out))
 
 
