@@ -80,43 +80,53 @@ def sorted_order(x: torch.Tensor, order: torch.Tensor | None = None, static: boo
 _KEY = 128
 
 
-def lane_leaders(occupancy: torch.Tensor, order: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Nearest occupant ahead in each lane, for every vehicle: (leader (K, B, N) long, N = none;
-    the occupancy in sorted order (K, B, N) long 0/1, for follower lookups with followers_of)."""
+def _keys(position: torch.Tensor, order: torch.Tensor) -> torch.Tensor:
+    """(B, N) int32 scan keys position * 128 + vehicle index: the nearest occupant's index comes out of a
+    running min / max without a lookup (int32: the scans' arithmetic is 3x faster than in int64)."""
+    return position.to(torch.int32) * _KEY + order.to(torch.int32)
+
+
+def _exclusive_scan(occ: torch.Tensor, key: torch.Tensor, none: int, running) -> torch.Tensor:
+    """(K, B, N + 1) int32: column p holds running (torch.cummin / cummax) over the keys of the occupants
+    (occ (K, B, N) bool) at positions before p, `none` where there is none; the keys are written one
+    column to the right of an unoccupied one, which makes the scan exclusive without a shifted copy."""
+    occ = torch.nn.functional.pad(occ, (1, 0))  # bool: cheaper to pad than the int32 keys
+    key = torch.nn.functional.pad(key, (1, 0))
+    # torch.cummin / cummax, not log2(N) shifted min steps: compiled, each shifted step was inlined into
+    # the next (2^5 recomputations at N = 25, 60 % of the compiled static step at 4,096 envs;
+    # docs/benchmarks.md)
+    return running(none + occ.to(torch.int32) * (key - none), -1).values  # key where occupied, else none
+
+
+def neighbour_keys(occupancy: torch.Tensor, order: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Every vehicle's nearest occupant ahead in each lane, and the scan followers_of reads followers from.
+
+    occupancy (K, B, N) bool; order (B, N) the ascending stable order of x (sorted_order). Returns leader
+    (K, B, N) long, N = none; behind_keys (K, B, N + 1) int32, column p: the key of the nearest occupant
+    before ascending position p. The leaders' scan runs over the vehicles in descending order, so that
+    "ahead" is "before" and no (K, B, N) tensor is flipped: only the (B, N) order."""
     K, B, N = occupancy.shape
     if N >= _KEY:
         raise ValueError(f"at most {_KEY - 1} vehicles per env are supported, got {N}")
-    order_k = order.expand(K, B, N)
-    occ = torch.gather(occupancy, 2, order_k).long()  # in sorted order
-    key = torch.arange(N, device=order.device) * _KEY + order  # (B, N)
-    none = _KEY * _KEY + N  # N modulo _KEY, above every key
-    # ahead[p] = the key of min{q > p : occ[q]}: a running min from the right. torch.cummin, not log2(N)
-    # shifted min steps: compiled, each shifted step was inlined into the next (2^5 recomputations at N = 25,
-    # 60 % of the compiled static step at 4,096 envs; docs/benchmarks.md); eager it is no slower at 4,096
-    # envs and 5x faster at one env
-    ahead = torch.cummin((none + occ * (key - none)).flip(-1), -1).values.flip(-1)
-    ahead = torch.cat([ahead[..., 1:], torch.full_like(ahead[..., :1], none)], 2)
-    return torch.empty_like(ahead).scatter_(2, order_k, ahead & (_KEY - 1)), occ
-
-
-def follower_keys(occ_sorted: torch.Tensor, order: torch.Tensor) -> torch.Tensor:
-    """(K, B, N) long, in sorted order: at position p, the key (see lane_neighbours) of the nearest
-    occupant before p; key & (128 - 1) is that vehicle's index, N where there is none."""
-    n = order.shape[1]
-    key = torch.arange(n, device=order.device) * _KEY + order
-    none = n - _KEY  # N modulo _KEY, below every key
-    behind = torch.cummax(none + occ_sorted * (key - none), -1).values  # a running max (see lane_leaders)
-    return torch.cat([torch.full_like(behind[..., :1], none), behind[..., :-1]], 2)
+    desc = order.flip(-1).expand(K, B, N)
+    occ_desc = torch.gather(occupancy, 2, desc)
+    position = torch.arange(N, device=order.device)
+    ahead = _exclusive_scan(occ_desc, _keys(N - 1 - position, desc[0]), _KEY * _KEY + N, torch.cummin)
+    leader = torch.empty((K, B, N), dtype=torch.int32, device=order.device)
+    leader.scatter_(2, desc, ahead[..., :N] & (_KEY - 1))
+    # none = N modulo _KEY: above every key for the min, below every key for the max
+    behind = _exclusive_scan(occ_desc.flip(-1), _keys(position, order), N - _KEY, torch.cummax)
+    return leader.long(), behind
 
 
 def followers_of(behind_keys: torch.Tensor, rank: torch.Tensor, k, b, i) -> torch.Tensor:
     """Nearest occupant behind vehicle i of env b in lane k (all (M,) long), N where there is none;
-    behind_keys from follower_keys, rank from inverse_order."""
-    _, n_envs, n = behind_keys.shape
+    behind_keys from neighbour_keys, rank from inverse_order."""
+    _, n_envs, n1 = behind_keys.shape
     # flat reads, not behind_keys[k, b, rank[b, i]]: advanced indexing with three index tensors takes a slow
     # general path on the CPU
-    r = take_flat(rank, b * n + i)
-    return take_flat(behind_keys, (k * n_envs + b) * n + r) & (_KEY - 1)
+    r = take_flat(rank, b * (n1 - 1) + i)
+    return (take_flat(behind_keys, (k * n_envs + b) * n1 + r) & (_KEY - 1)).long()
 
 
 def take_flat(t: torch.Tensor, flat: torch.Tensor) -> torch.Tensor:
@@ -144,15 +154,15 @@ def lane_neighbours(
 
     The scans run on keys position * 128 + vehicle index (N < 128), so the nearest occupant's index comes
     out of the running min / max without a lookup. (The step itself only needs every leader, and the
-    followers of a few vehicles: see lane_leaders and followers_of.)
+    followers of a few vehicles: see neighbour_keys and followers_of.)
     """
     K, B, N = occupancy.shape
     if order is None:
         order = sorted_order(x)
-    leader, occ = lane_leaders(occupancy, order)
-    behind = follower_keys(occ, order)
-    follower = torch.empty_like(behind).scatter_(2, order.expand(K, B, N), behind & (_KEY - 1))
-    return leader, follower
+    leader, behind = neighbour_keys(occupancy, order)
+    follower = torch.empty((K, B, N), dtype=torch.int32, device=x.device)
+    follower.scatter_(2, order.expand(K, B, N), behind[..., :N] & (_KEY - 1))
+    return leader, follower.long()
 
 
 def pad(values: torch.Tensor, fill: float) -> torch.Tensor:

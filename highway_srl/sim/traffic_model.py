@@ -34,10 +34,9 @@ from highway_srl.sim.traffic import (
     gather_lead,
     idm_accel_fast,
     idm_free_term,
-    follower_keys,
     followers_of,
     inverse_order,
-    lane_leaders,
+    neighbour_keys,
     occupancy,
     pad,
     sorted_order,
@@ -74,7 +73,7 @@ class Neighbours:
     leader: torch.Tensor
     x_pad: torch.Tensor
     v_pad: torch.Tensor
-    behind_keys: torch.Tensor  # (K, B, N) in x order, see traffic.follower_keys
+    behind_keys: torch.Tensor  # (K, B, N + 1) in x order, see traffic.neighbour_keys
     rank: torch.Tensor  # (B, N) position of each vehicle in x order
 
     def follower(self, k: torch.Tensor, b: torch.Tensor, i: torch.Tensor) -> torch.Tensor:
@@ -85,8 +84,7 @@ class Neighbours:
 def find_neighbours(s: WorldState, road: Road, static: bool = False) -> Neighbours:
     occ = occupancy(s.y, approx_half_width(s.heading), s.lane, s.target_lane, road.num_lanes, road.lane_width_m)
     s.order.copy_(sorted_order(s.x, s.order, static))
-    leader, occ_sorted = lane_leaders(occ, s.order)
-    behind = follower_keys(occ_sorted, s.order)
+    leader, behind = neighbour_keys(occ, s.order)
     return Neighbours(occ, leader, pad(s.x, FAR_M), pad(s.v, 0.0), behind, inverse_order(s.order))
 
 

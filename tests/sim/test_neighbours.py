@@ -13,11 +13,10 @@ from hypothesis import strategies as st
 from highway_srl.constants import D_MAX_M, SCENARIOS, VEHICLE_LENGTH_M
 from highway_srl.sim import LANE_END, NO_VEHICLE, World
 from highway_srl.sim.traffic import (
-    follower_keys,
     followers_of,
     inverse_order,
-    lane_leaders,
     lane_neighbours,
+    neighbour_keys,
     sorted_order,
 )
 from sim_helpers import drive
@@ -102,10 +101,9 @@ def test_lane_neighbours_are_the_nearest_occupants_in_stable_order(data, n, k, b
                 assert int(follower[kk, bb, i]) == (max(behind, key=key) if behind else n)
     # the step's own path: all leaders at once, followers on demand
     order = sorted_order(x)
-    leaders_only, occ_sorted = lane_leaders(occ, order)
+    leaders_only, behind = neighbour_keys(occ, order)
     assert torch.equal(leaders_only, leader)
     kq, bq, iq = (t.reshape(-1) for t in torch.meshgrid(torch.arange(k), torch.arange(b), torch.arange(n), indexing="ij"))
-    behind = follower_keys(occ_sorted, order)
     assert torch.equal(followers_of(behind, inverse_order(order), kq, bq, iq), follower.reshape(-1))
 
 
