@@ -22,6 +22,7 @@ from highway_srl.constants import (
 from highway_srl.scenarios import scenario_spec
 from highway_srl.sim import dynamics
 from highway_srl.sim.adversary import paper_cut_ins
+from highway_srl.sim.allocator import keep_freed_memory
 from highway_srl.sim.contacts import ego_collision, stage_events
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.recycle import recycle
@@ -134,6 +135,8 @@ class World:
             raise ValueError(f"unknown adversary {adversary!r}; choose one of {', '.join(ADVERSARIES)}")
         self.adversary = adversary
         self.device = check_device(device)
+        if self.device.type == "cpu":
+            keep_freed_memory()  # 1.3x at 4,096 envs: the step's freed tensors are reused, not faulted in again
         self.scenario, self.traffic, self.adversarial = scenario, traffic, bool(adversarial)
         self.road: Road = make_road(scenario)
         self.level = level
