@@ -10,7 +10,6 @@ from highway_srl.sim.collision import CONTACT_REACH_M, boxes_overlap, front_x_in
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.road import Road
 from highway_srl.sim.state import WorldState
-from highway_srl.sim.traffic import FAR_M, pad
 from highway_srl.sim.traffic_model import Neighbours
 
 EDGE_TOLERANCE_M = 0.5  # how far the ego's side may reach past the road's outer edge before it is a collision
@@ -71,12 +70,12 @@ def ego_collision(s: WorldState, road: Road, tables: LaneTables, nb: Neighbours,
     envs, zero = torch.arange(b, device=s.x.device), torch.zeros(b, dtype=torch.long, device=s.x.device)
     followers = [nb.follower(torch.full_like(zero, k), envs, zero) for k in range(road.num_lanes)]
     j = torch.cat([nb.leader[:, :, 0].T, torch.stack(followers, 1)], 1)  # (B, 2K)
-    x_pad, y_pad, h_pad = pad(s.x, FAR_M), pad(s.y, 0.0), pad(s.heading, 0.0)
-    g = lambda t: torch.gather(t, 1, j)  # noqa: E731
-    xj, yj = g(x_pad), g(y_pad)
+    # a missing neighbour (j = N) reads vehicle N - 1 and is masked out by j < n: no padded copies
+    g = lambda t: torch.gather(t, 1, j.clamp(max=n - 1))  # noqa: E731
+    xj, yj = g(s.x), g(s.y)
     near = ((xj - s.x[:, :1]).abs() < CONTACT_REACH_M) & ((yj - s.y[:, :1]).abs() < CONTACT_REACH_M) & (j < n)
     if static or s.x.device.type != "cpu" or bool(near.any()):  # on CPU a branch is free and contacts are rare
-        hit = (boxes_overlap(s.x[:, :1], s.y[:, :1], s.heading[:, :1], xj, yj, g(h_pad)) & near).any(1)
+        hit = (boxes_overlap(s.x[:, :1], s.y[:, :1], s.heading[:, :1], xj, yj, g(s.heading)) & near).any(1)
     else:
         hit = torch.zeros_like(near[:, 0])
     x, y, w = s.x[:, 0], s.y[:, 0], road.lane_width_m
