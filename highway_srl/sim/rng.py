@@ -28,9 +28,17 @@ def mix64(z: torch.Tensor) -> torch.Tensor:
 
 def key(seed: torch.Tensor, episode: torch.Tensor, step: torch.Tensor | int, stream: int) -> torch.Tensor:
     """(B,) int64 key for one stream of one step of one episode of each env."""
-    k = mix64(seed * 1_000_003 + episode)
-    k = mix64(k + stream * 7919)
-    return mix64(k + step)
+    return step_key(episode_key(seed, episode), step, stream)
+
+
+def episode_key(seed: torch.Tensor, episode: torch.Tensor) -> torch.Tensor:
+    """(B,) int64: the part of key() that one episode's streams share (computed once where many are drawn)."""
+    return mix64(seed * 1_000_003 + episode)
+
+
+def step_key(episode_k: torch.Tensor, step: torch.Tensor | int, stream: int) -> torch.Tensor:
+    """key(seed, episode, step, stream) from episode_key(seed, episode)."""
+    return mix64(mix64(episode_k + stream * 7919) + step)
 
 
 def uniform(k: torch.Tensor, n: int | None = None) -> torch.Tensor:

@@ -138,7 +138,8 @@ def spawn(
     dev = seed.device
     b, m = seed.shape[0], layout.lane.shape[0]
     n = m + 1
-    key = lambda stream: rng.key(seed, episode, 0, stream)  # noqa: E731
+    episode_k = rng.episode_key(seed, episode)  # shared by the spawn's nine streams
+    key = lambda stream: rng.step_key(episode_k, 0, stream)  # noqa: E731
 
     starts = torch.tensor(road.ego_start_lanes, device=dev)
     ego_lane = starts[rng.randint(key(S_EGO_LANE), len(road.ego_start_lanes))]
