@@ -80,22 +80,19 @@ def sorted_order(x: torch.Tensor, order: torch.Tensor | None = None, static: boo
 _KEY = 128
 
 
-def _keys(position: torch.Tensor, order: torch.Tensor) -> torch.Tensor:
-    """(B, N) int32 scan keys position * 128 + vehicle index: the nearest occupant's index comes out of a
-    running min / max without a lookup (int32: the scans' arithmetic is 3x faster than in int64)."""
-    return position.to(torch.int32) * _KEY + order.to(torch.int32)
-
-
-def _exclusive_scan(occ: torch.Tensor, key: torch.Tensor, none: int, running) -> torch.Tensor:
-    """(K, B, N + 1) int32: column p holds running (torch.cummin / cummax) over the keys of the occupants
-    (occ (K, B, N) bool) at positions before p, `none` where there is none; the keys are written one
-    column to the right of an unoccupied one, which makes the scan exclusive without a shifted copy."""
-    occ = torch.nn.functional.pad(occ, (1, 0))  # bool: cheaper to pad than the int32 keys
-    key = torch.nn.functional.pad(key, (1, 0))
+def _exclusive_scan(occupancy: torch.Tensor, order: torch.Tensor, key: torch.Tensor, none: int, running):
+    """(K, B, N + 1) int32: column p holds running (torch.cummin / cummax) over the keys (B, N) int32 of the
+    occupants at positions before p of `order` (B, N), `none` where there is none (occupancy (K, B, N)
+    bool). The keys are written one column to the right of a padding column whose key is `none`, which makes
+    the scan exclusive without a shifted copy."""
+    k, b, n = occupancy.shape
+    pad = lambda t: torch.nn.functional.pad(t, (1, 0))  # noqa: E731
+    # column 0 reads vehicle 0's occupancy, multiplied by the padding's key - none = 0 below
+    occ = torch.gather(occupancy, 2, pad(order).expand(k, b, n + 1))
     # torch.cummin / cummax, not log2(N) shifted min steps: compiled, each shifted step was inlined into
     # the next (2^5 recomputations at N = 25, 60 % of the compiled static step at 4,096 envs;
     # docs/benchmarks.md)
-    return running(none + occ.to(torch.int32) * (key - none), -1).values  # key where occupied, else none
+    return running(none + occ.to(torch.int32) * pad(key - none), -1).values  # key where occupied, else none
 
 
 def neighbour_keys(occupancy: torch.Tensor, order: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -103,19 +100,20 @@ def neighbour_keys(occupancy: torch.Tensor, order: torch.Tensor) -> tuple[torch.
 
     occupancy (K, B, N) bool; order (B, N) the ascending stable order of x (sorted_order). Returns leader
     (K, B, N) long, N = none; behind_keys (K, B, N + 1) int32, column p: the key of the nearest occupant
-    before ascending position p. The leaders' scan runs over the vehicles in descending order, so that
-    "ahead" is "before" and no (K, B, N) tensor is flipped: only the (B, N) order."""
+    before ascending position p. The scans run on int32 keys position * 128 + vehicle index (N < 128),
+    so the nearest occupant's index comes out of a running min / max without a lookup (int32: the scans'
+    arithmetic is 3x faster than in int64). The leaders' scan runs over the vehicles in descending order,
+    so that "ahead" is "before" and no (K, B, N) tensor is flipped: only the (B, N) order and keys."""
     K, B, N = occupancy.shape
     if N >= _KEY:
         raise ValueError(f"at most {_KEY - 1} vehicles per env are supported, got {N}")
-    desc = order.flip(-1).expand(K, B, N)
-    occ_desc = torch.gather(occupancy, 2, desc)
-    position = torch.arange(N, device=order.device)
-    ahead = _exclusive_scan(occ_desc, _keys(N - 1 - position, desc[0]), _KEY * _KEY + N, torch.cummin)
-    leader = torch.empty((K, B, N), dtype=torch.int32, device=order.device)
-    leader.scatter_(2, desc, ahead[..., :N] & (_KEY - 1))
+    key = torch.arange(0, N * _KEY, _KEY, dtype=torch.int32, device=order.device) + order.to(torch.int32)
+    desc = order.flip(-1)
     # none = N modulo _KEY: above every key for the min, below every key for the max
-    behind = _exclusive_scan(occ_desc.flip(-1), _keys(position, order), N - _KEY, torch.cummax)
+    ahead = _exclusive_scan(occupancy, desc, key.flip(-1), _KEY * _KEY + N, torch.cummin)
+    leader = torch.empty((K, B, N), dtype=torch.int32, device=order.device)
+    leader.scatter_(2, desc.expand(K, B, N), ahead[..., :N] & (_KEY - 1))
+    behind = _exclusive_scan(occupancy, order, key, N - _KEY, torch.cummax)
     return leader.long(), behind
 
 
