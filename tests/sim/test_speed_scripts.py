@@ -1,0 +1,44 @@
+"""The speed-measuring scripts run end to end at toy sizes and refuse bad input with one line."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _run(*args: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
+    return subprocess.run([sys.executable, *args], env=env, capture_output=True, text=True, timeout=300, cwd=ROOT)
+
+
+def test_ab_sim_compares_batch_sizes_and_settings_of_one_checkout():
+    done = _run("scripts/ab_sim.py", ".", ".", "--envs", "1,3", "--processes", "1", "--rounds", "2", "--block", "2",
+                "--env-a", "HIGHWAY_SRL_DEFAULT_MALLOC=1")
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    assert [(s["envs"], s["env"]) for s in out["sides"]] == [
+        (1, ["HIGHWAY_SRL_DEFAULT_MALLOC=1"]), (3, ["HIGHWAY_SRL_DEFAULT_MALLOC=1"]), (1, []), (3, [])]
+    assert all(s["mean_env_steps_per_s"] > 0 and len(s["process_medians"]) == 1 for s in out["sides"])
+    assert out["sides"][0]["over_first"] == 1.0
+
+
+def test_ab_sim_bad_input_is_one_line():
+    for args in (["--envs", "4,x", "."], ["."], ["/nonexistent", "."], [".", ".", "--env-b", "NOEQUALS"]):
+        done = _run("scripts/ab_sim.py", *args)
+        assert done.returncode == 2 and "Traceback" not in done.stderr
+        assert done.stderr.strip().splitlines()[-1].startswith("ab_sim.py: error:")
+
+
+def test_ops_per_step_counts_the_step_by_function():
+    done = _run("scripts/ops_per_step.py", "--envs", "2", "--steps", "2")
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    # the step's own functions are where its operations are; the total is their sum
+    assert {"mobil_lane_changes", "lateral", "idm_accel_fast"} <= set(out["by_function"])
+    assert abs(sum(out["by_function"].values()) - out["ops_per_step"]) < 1.0
+    assert 100 < out["ops_per_step"] < 5000
