@@ -2,12 +2,12 @@
 
 Why: at 4,096 envs one world step allocates and frees hundreds of tensors of 0.1-2 MB. glibc serves a
 block above its mmap threshold (128 KiB at start, then adapted to the sizes it sees) with a fresh
-mapping and unmaps it when freed, so every step faults its pages in again: 130,000-420,000 minor faults
-in 250 steps of `bench sim --envs 4096`, 7-17 % of the time in the kernel, and which of the two a
-process gets depends on how glibc's threshold happened to adapt (a 1.3x spread between runs of one
-command). With the threshold at glibc's maximum (32 MiB) and the heap trimmed only when more than
-1 GiB of it is free, freed blocks are reused: about 48,000 faults, every run alike, and 1.3x the steps per
-second on average (docs/benchmarks.md). The process keeps up to its peak tensor memory instead of
+mapping and unmaps it when freed, so every step faults its pages in again: 130,000-660,000 minor faults
+in 250 steps of `bench sim --envs 4096`, up to a fifth of the time in the kernel, and how many a process
+gets depends on how glibc's threshold happened to adapt (a 1.3x spread between runs of one command).
+With the threshold at glibc's maximum (32 MiB) and the heap trimmed only when more than 1 GiB of it is
+free, freed blocks are reused: about 48,000 faults, every run alike, and 1.2x the steps per second on
+average (docs/benchmarks.md). The process keeps up to its peak tensor memory instead of
 returning it between steps; peak memory itself does not grow.
 
 Only glibc has mallopt (Linux); elsewhere, or with HIGHWAY_SRL_DEFAULT_MALLOC=1 in the environment,
@@ -40,7 +40,7 @@ def tune_malloc(environ) -> bool:
         return False
     try:
         mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError):  # not glibc
+    except (OSError, AttributeError, TypeError):  # not glibc (TypeError: no CDLL(None) on Windows)
         return False
     mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
     # setting the mmap threshold also stops glibc from adapting it

@@ -10,7 +10,15 @@ import torch
 
 from highway_srl.sim import World, allocator
 
-glibc = pytest.mark.skipif(not hasattr(ctypes.CDLL(None), "mallopt"), reason="mallopt is glibc's")
+
+def _has_mallopt() -> bool:
+    try:
+        return hasattr(ctypes.CDLL(None), "mallopt")
+    except (OSError, TypeError):
+        return False
+
+
+glibc = pytest.mark.skipif(not _has_mallopt(), reason="mallopt is glibc's")
 
 
 def _churn() -> None:
