@@ -9,7 +9,7 @@ import time
 import torch
 
 from highway_srl.constants import DT_S
-from highway_srl.sim import World
+from highway_srl.sim import World, allocator
 
 
 def _sync(device: torch.device) -> None:
@@ -18,7 +18,8 @@ def _sync(device: torch.device) -> None:
 
 
 def machine() -> dict:
-    info = {"cpu": platform.processor() or platform.machine(), "threads": torch.get_num_threads(), "torch": torch.__version__}
+    info = {"cpu": platform.processor() or platform.machine(), "threads": torch.get_num_threads(), "torch": torch.__version__,
+            "malloc": allocator.setting()}  # glibc's thresholds change the CPU figures by 1.2x (sim/allocator.py)
     if torch.cuda.is_available():
         info["gpu"] = torch.cuda.get_device_name(0)
     return info

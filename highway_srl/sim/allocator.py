@@ -34,6 +34,12 @@ def keep_freed_memory() -> bool:
     return _state["tuned"]
 
 
+def setting() -> str:
+    """What this process runs with, for benchmark records: "tuned" (set by a CPU World), "default" (declined,
+    not glibc, or no CPU World made yet)."""
+    return "tuned" if _state["tuned"] else "default"
+
+
 def tune_malloc(environ) -> bool:
     """Set the thresholds unless environ declines it; True when glibc took them."""
     if environ.get("HIGHWAY_SRL_DEFAULT_MALLOC", "") not in ("", "0"):

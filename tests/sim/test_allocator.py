@@ -45,3 +45,10 @@ def test_a_cpu_world_makes_freed_tensor_memory_reused():
 
 def test_the_setting_can_be_declined():
     assert allocator.tune_malloc({"HIGHWAY_SRL_DEFAULT_MALLOC": "1"}) is False
+
+
+@glibc
+def test_bench_figures_record_the_setting():
+    from highway_srl.experiments.bench import bench_sim
+
+    assert bench_sim("two-lane", "C", envs=2, steps=2, device="cpu")["machine"]["malloc"] == "tuned"
