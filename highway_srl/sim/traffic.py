@@ -86,13 +86,13 @@ def _exclusive_scan(occupancy: torch.Tensor, order: torch.Tensor, key: torch.Ten
     bool). The keys are written one column to the right of a padding column whose key is `none`, which makes
     the scan exclusive without a shifted copy."""
     k, b, n = occupancy.shape
-    pad = lambda t: torch.nn.functional.pad(t, (1, 0))  # noqa: E731
+    pad_front = lambda t: torch.nn.functional.pad(t, (1, 0))  # noqa: E731 (a zero column before column 0)
     # column 0 reads vehicle 0's occupancy, multiplied by the padding's key - none = 0 below
-    occ = torch.gather(occupancy, 2, pad(order).expand(k, b, n + 1))
+    occ = torch.gather(occupancy, 2, pad_front(order).expand(k, b, n + 1))
     # torch.cummin / cummax, not log2(N) shifted min steps: compiled, each shifted step was inlined into
     # the next (2^5 recomputations at N = 25, 60 % of the compiled static step at 4,096 envs;
     # docs/benchmarks.md)
-    return running(none + occ.to(torch.int32) * pad(key - none), -1).values  # key where occupied, else none
+    return running(none + occ.to(torch.int32) * pad_front(key - none), -1).values  # key where occupied, else none
 
 
 def neighbour_keys(occupancy: torch.Tensor, order: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

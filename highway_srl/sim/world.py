@@ -317,10 +317,11 @@ def call_settled(graph, *args):
     Why: dynamo checks every guard of a graph (each state tensor's metadata, each attribute the trace read) on
     every call: 80 us (one env's world step) to 200 us (a training graph) a call on this CPU, and a compiled
     MoE-RM-SRL training step makes 17 calls at 16 envs (collect, 16 update rounds): 2.8-3.5 ms of host time
-    a vector step, more than its kernels on a GPU (docs/benchmarks.md). Why it is safe here: every graph has static shapes and reads no Python value that
-    changes from call to call once its versions exist (the tests make a recompile an error, with
-    CHECK_GUARDS on); a graph called with a new kind of input would silently run an old version instead of
-    being recompiled, so nothing outside those callers should call this."""
+    a vector step, more than its kernels on a GPU (docs/benchmarks.md). Why it is safe here: every graph has
+    static shapes and reads no Python value that changes from call to call once its versions exist (the
+    tests make a recompile an error, with CHECK_GUARDS on); a graph called with a new kind of input would
+    silently run an old version instead of being recompiled, so nothing outside those callers should call
+    this."""
     if CHECK_GUARDS:
         return graph(*args)
     with torch.compiler.set_stance("default", skip_guard_eval_unsafe=True):
