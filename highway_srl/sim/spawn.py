@@ -80,14 +80,14 @@ def make_layout(road: Road, level: TrafficLevel, num_vehicles: int) -> Layout:
     )
 
 
-def _sv_x(road: Road, level: TrafficLevel, layout: Layout, key, ego_x: torch.Tensor,
+def _sv_x(road: Road, level: TrafficLevel, layout: Layout, u: list[torch.Tensor], ego_x: torch.Tensor,
           ego_lane: torch.Tensor) -> torch.Tensor:
     """(B, M) m: the SVs' positions, queued ahead of and behind the ego in each lane with drawn headways."""
     dev = ego_x.device
     b, m = ego_x.shape[0], layout.lane.shape[0]
     lay_lane, side = layout.lane.to(dev), layout.side.to(dev)
     h_lo, h_hi = level.headway_m
-    spacing = VEHICLE_LENGTH_M + h_lo + (h_hi - h_lo) * rng.uniform(key(S_HEADWAY), m)  # (B, M)
+    spacing = VEHICLE_LENGTH_M + h_lo + (h_hi - h_lo) * u[S_HEADWAY]  # (B, M)
     # distance from the ego along the queue: a running sum per queue (cumsum, not a matrix product, so that
     # an env's numbers do not depend on how many envs share the batch)
     slot = layout.slot.to(dev)
@@ -97,31 +97,31 @@ def _sv_x(road: Road, level: TrafficLevel, layout: Layout, key, ego_x: torch.Ten
     offset = grid.cumsum(2).view(b, -1)[:, slot]
     first_spacing = grid[:, :, 0].repeat_interleave(layout.max_rank, 1)[:, slot]  # the queue's first spacing
     # lanes other than the ego's get a random phase so their queues do not line up with the ego's
-    phase = rng.uniform(key(S_LANE_PHASE), road.num_lanes)  # (B, lanes)
+    phase = u[S_LANE_PHASE]  # (B, lanes)
     sv_lane = lay_lane.expand(b, m)
     in_ego_lane = sv_lane == ego_lane[:, None]
-    u = torch.gather(phase, 1, sv_lane)
-    shift = torch.where(side > 0, (1 - u) * first_spacing, u * first_spacing)
+    lane_phase = torch.gather(phase, 1, sv_lane)
+    shift = torch.where(side > 0, (1 - lane_phase) * first_spacing, lane_phase * first_spacing)
     shift = torch.where(in_ego_lane | layout.ramp.to(dev), torch.zeros_like(shift), shift)
     return ego_x[:, None] + side * (offset - shift)
 
 
-def _styles(key, style: int | None, b: int, m: int, dev) -> torch.Tensor:
+def _styles(u: list[torch.Tensor], style: int | None, b: int, m: int, dev) -> torch.Tensor:
     """(B, N) long: each vehicle's index into STYLES, the ego's 0; drawn unless one `style` is given."""
     if style is None:
-        sv_style = rng.randint(key(S_STYLE), len(STYLES), m)
+        sv_style = rng.to_int(u[S_STYLE], len(STYLES))
     else:
         sv_style = torch.full((b, m), style, dtype=torch.long, device=dev)
     return torch.cat([torch.zeros(b, 1, dtype=torch.long, device=dev), sv_style], 1)
 
 
-def _intents(road: Road, layout: Layout, key, b: int, m: int, dev) -> torch.Tensor:
+def _intents(road: Road, layout: Layout, u: list[torch.Tensor], b: int, m: int, dev) -> torch.Tensor:
     """(B, N) long: ramp SVs merge; in the exit scenario a drawn share of the mainline SVs exit."""
     intent = torch.full((b, m + 1), NO_INTENT, dtype=torch.long, device=dev)
     if road.spec.svs_start_on_ramp:
         intent[:, 1:] = torch.where(layout.ramp.to(dev), MERGE_INTENT, NO_INTENT).expand(b, m)
     elif road.spec.svs_may_exit:
-        exits = rng.uniform(key(S_INTENT), m) < EXIT_INTENT_PROB
+        exits = u[S_INTENT] < EXIT_INTENT_PROB
         intent[:, 1:] = torch.where(exits, EXIT_INTENT, NO_INTENT)
     return intent
 
@@ -138,19 +138,20 @@ def spawn(
     dev = seed.device
     b, m = seed.shape[0], layout.lane.shape[0]
     n = m + 1
-    episode_k = rng.episode_key(seed, episode)  # shared by the spawn's nine streams
-    key = lambda stream: rng.step_key(episode_k, 0, stream)  # noqa: E731
+    width = {S_EGO_LANE: None, S_LANE_PHASE: road.num_lanes, S_SPEED: n, S_HEADWAY: m, S_STYLE: m, S_INTENT: m,
+             S_OFFSET: n, S_PHASE: None}  # None: one draw per env
+    u = rng.uniforms(rng.episode_key(seed, episode), 0, tuple(width[s] for s in range(len(width))))
 
     starts = torch.tensor(road.ego_start_lanes, device=dev)
-    ego_lane = starts[rng.randint(key(S_EGO_LANE), len(road.ego_start_lanes))]
+    ego_lane = starts[rng.to_int(u[S_EGO_LANE], len(road.ego_start_lanes))]
     ego_x = torch.full((b,), road.ego_start_x_m, device=dev)
     lo, hi = SV_INIT_SPEED_MPS
-    speed = lo + (hi - lo) * rng.uniform(key(S_SPEED), n)  # (B, N), column 0 for the ego
-    x = torch.cat([ego_x[:, None], _sv_x(road, level, layout, key, ego_x, ego_lane)], 1)
+    speed = lo + (hi - lo) * u[S_SPEED]  # (B, N), column 0 for the ego
+    x = torch.cat([ego_x[:, None], _sv_x(road, level, layout, u, ego_x, ego_lane)], 1)
     lane = torch.cat([ego_lane[:, None], layout.lane.to(dev).expand(b, m)], 1)
     y = lane.to(torch.float32) * road.lane_width_m
 
-    sty = _styles(key, style, b, m, dev)
+    sty = _styles(u, style, b, m, dev)
     table = lambda attr: torch.tensor([getattr(s, attr) for s in STYLES], device=dev)[sty]  # noqa: E731
     v0 = (1.0 + table("speed_violation").float()) * V_MAX_MPS
     v0[:, 0] = V_MAX_MPS
@@ -168,13 +169,13 @@ def spawn(
         s0=table("desired_headway_m").float(),
         lane_change=table("lane_change").bool(),
         adversarial_prob=table("adversarial_prob").float(),
-        intent=_intents(road, layout, key, b, m, dev),
-        trigger_offset=offsets[rng.randint(key(S_OFFSET), len(offsets), n)],
+        intent=_intents(road, layout, u, b, m, dev),
+        trigger_offset=offsets[rng.to_int(u[S_OFFSET], len(offsets))],
         trigger_used=zeros_b.clone(),
         forced=zeros_b.clone(),
         # vehicle n decides at steps t with (t + phase) % 8 == 0; the per-episode offset is drawn, the
         # stride by index spreads the decisions (see dynamics.decision_slots)
-        phase=(rng.randint(key(S_PHASE), 8)[:, None] + torch.arange(n, device=dev)) % 8,
+        phase=(rng.to_int(u[S_PHASE], 8)[:, None] + torch.arange(n, device=dev)) % 8,
         order=sorted_order(x),
         seed=seed.clone(),
         episode=episode.clone(),

@@ -42,3 +42,13 @@ def test_key_and_its_episode_part_agree_with_the_reference(seed, episode, step, 
     want = key_reference(seed, episode, step, stream)
     assert rng.key(s, e, step, stream).item() == want
     assert rng.step_key(rng.episode_key(s, e), step, stream).item() == want
+
+
+@settings(max_examples=30, deadline=None)
+@given(seeds=st.lists(st.integers(0, 2**31), min_size=1, max_size=4), step=st.integers(0, 10**4),
+       widths=st.lists(st.one_of(st.none(), st.integers(1, 12)), min_size=1, max_size=9))
+def test_all_streams_at_once_equal_one_stream_at_a_time(seeds, step, widths):
+    episode_k = rng.episode_key(torch.tensor(seeds), torch.arange(len(seeds)))
+    draws = rng.uniforms(episode_k, step, tuple(widths))
+    for stream, width in enumerate(widths):
+        assert torch.equal(draws[stream], rng.uniform(rng.step_key(episode_k, step, stream), width))
