@@ -53,11 +53,14 @@ def _cmd_bench(args) -> int:
     if args.what == "sim":
         bench.check_sim_memory(args.scenario, args.traffic, args.envs, args.device, args.adversarial)
         result = bench.bench_sim(args.scenario, args.traffic, args.envs, args.steps, args.device, args.adversarial,
-                                 compile=args.compile)
+                                 compile=args.compile, processes=args.processes)
         line = (f"{result['scenario']} level {result['traffic']}: {result['envs']} envs x {result['steps']} steps on "
                 f"{result['device']}: {result['env_steps_per_s']:,.0f} env-steps/s = "
-                f"{result['sim_s_per_wall_s']:,.0f} simulated s per wall s")
+                f"{result['sim_s_per_wall_s']:,.0f} simulated s per wall s"
+                + (f" ({args.processes} processes)" if args.processes > 1 else ""))
     else:
+        if args.processes > 1:
+            raise ValueError("--processes is for bench sim (training steps its world in its own process)")
         from highway_srl.experiments.train import bench_train
 
         result = bench_train(method=args.method, scenario=args.scenario, traffic=args.traffic, envs=args.envs,
@@ -101,6 +104,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--envs", type=positive, default=4096)
     p.add_argument("--steps", type=positive, default=200)
     p.add_argument("--seeds", type=positive, default=1, help="independent agents trained at once (bench train)")
+    p.add_argument("--processes", type=positive, default=1,
+                   help="worker processes stepping the world's envs, one thread each (bench sim, CPU)")
     p.add_argument("--device", default="cpu")
     commands.step_form_args(p)
     p.add_argument("--json", action="store_true")

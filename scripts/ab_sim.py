@@ -3,6 +3,7 @@
     OMP_NUM_THREADS=1 python scripts/ab_sim.py OLD_CHECKOUT NEW_CHECKOUT --envs 4096
     python scripts/ab_sim.py . . --env-a HIGHWAY_SRL_DEFAULT_MALLOC=1      # one setting against another
     python scripts/ab_sim.py . --envs 512,1024,2048,4096                   # one checkout, batch sizes
+    python scripts/ab_sim.py . . --env-b AB_WORLD_PROCESSES=2             # World(processes=2) against 1
 
 Why not one `bench sim` run after another: on a shared 2-core machine the same command varies 1.3-1.7x
 from minute to minute, and processes of one command differ by themselves (a process's memory layout
@@ -30,7 +31,10 @@ def worker(args) -> None:
 
     from highway_srl.sim import World
 
-    world = World(args.scenario, args.traffic, num_envs=args.envs, seed=0)
+    # AB_WORLD_PROCESSES: the World's own worker processes (World(processes=...)), a setting like any other
+    processes = int(os.environ.get("AB_WORLD_PROCESSES", "1"))
+    extra = {"processes": processes} if processes > 1 else {}  # older checkouts lack the keyword
+    world = World(args.scenario, args.traffic, num_envs=args.envs, seed=0, **extra)
     speed = torch.full((args.envs,), 8.0)
     for _ in range(10):
         world.step_and_reset(world.ego_lane, speed)

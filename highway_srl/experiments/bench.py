@@ -67,15 +67,17 @@ def check_sim_memory(scenario: str, traffic: str, envs: int, device: str, advers
 
 
 def bench_sim(scenario: str, traffic: str, envs: int, steps: int, device: str, adversarial: bool = False,
-              warmup: int = 10, compile: bool | str = False) -> dict:
+              warmup: int = 10, compile: bool | str = False, processes: int = 1) -> dict:
     """Env-steps per second of World.step (+ resets) with the ego holding its lane at a constant 8 m/s.
 
     compile: see World; the warm-up steps then include the compilation, reported as warmup_s, and
-    env_steps_per_s_with_compile counts them (compilation included) next to the steady rate."""
+    env_steps_per_s_with_compile counts them (compilation included) next to the steady rate.
+    processes: see World (worker processes of one thread each; their start is in warmup_s)."""
     if steps < 1:
         raise ValueError(f"steps must be a positive integer, got {steps}")
     start = time.perf_counter()
-    world = World(scenario, traffic, adversarial=adversarial, num_envs=envs, device=device, seed=0, compile=compile)
+    world = World(scenario, traffic, adversarial=adversarial, num_envs=envs, device=device, seed=0, compile=compile,
+                  processes=processes)
     speed = torch.full((envs,), 8.0, device=world.device)
 
     def run(n: int) -> None:
@@ -88,6 +90,7 @@ def bench_sim(scenario: str, traffic: str, envs: int, steps: int, device: str, a
     run(steps)
     _sync(world.device)
     end = time.perf_counter()
+    world.close()
     wall = end - warm
     rate = envs * steps / wall
     return {
@@ -99,6 +102,7 @@ def bench_sim(scenario: str, traffic: str, envs: int, steps: int, device: str, a
         "steps": steps,
         "device": str(world.device),
         "compile": compile,
+        "processes": processes,
         "wall_s": round(wall, 4),
         "env_steps_per_s": round(rate, 1),
         "sim_s_per_wall_s": round(rate * DT_S, 1),

@@ -6,6 +6,7 @@ Python loops over envs or vehicles (only over the at most three lanes).
 
 from __future__ import annotations
 
+import copy
 import functools
 from dataclasses import dataclass, fields
 
@@ -25,6 +26,7 @@ from highway_srl.sim.adversary import paper_cut_ins
 from highway_srl.sim.allocator import keep_freed_memory
 from highway_srl.sim.contacts import ego_collision, stage_events
 from highway_srl.sim.lane_tables import LaneTables
+from highway_srl.sim.processes import WorldProcesses, check_processes
 from highway_srl.sim.recycle import recycle
 from highway_srl.sim.road import Road, make_road
 from highway_srl.sim.snapshot import LANE_END, NO_VEHICLE, Snapshot
@@ -102,6 +104,10 @@ class World:
     reference), True (torch.compile; on CUDA with CUDA graphs, mode "reduce-overhead") or a torch.compile
     mode. The compiled step follows eager to float rounding (tests/sim/test_compile.py); eager runs
     reproduce bit for bit. On the CPU it needs a C++ compiler.
+
+    processes: step the envs in this many worker processes of one thread each, P contiguous slices of the
+    batch (CPU, eager; sim/processes.py): the same episodes bit for bit, faster at large batches on several
+    cores. The state stays readable and editable in this process between steps; close() ends the workers.
     """
 
     def __init__(
@@ -117,6 +123,7 @@ class World:
         max_steps: int = EPISODE_STEPS,
         adversary: str = "mild",
         compile: bool | str = False,
+        processes: int = 1,
     ):
         scenario_spec(scenario)  # raises the one-line error naming the scenarios
         if traffic not in TRAFFIC_LEVELS:
@@ -135,6 +142,7 @@ class World:
             raise ValueError(f"unknown adversary {adversary!r}; choose one of {', '.join(ADVERSARIES)}")
         self.adversary = adversary
         self.device = check_device(device)
+        check_processes(processes, num_envs, compile, self.device)
         if self.device.type == "cpu":
             keep_freed_memory()  # 1.2x at 4,096 envs: the step's freed tensors are reused, not faulted in again
         self.scenario, self.traffic, self.adversarial = scenario, traffic, bool(adversarial)
@@ -151,12 +159,54 @@ class World:
             if seeds.shape != (num_envs,):
                 raise ValueError(f"need {num_envs} seeds, got {seeds.shape[0]}")
         self._lane_tables = LaneTables.of(self.road, self.device)
-        self.state: WorldState = spawn(
+        self._processes: WorldProcesses | None = None
+        self.state = spawn(
             self.road, level, self.layout, seeds.to(self.device), torch.zeros_like(seeds).to(self.device), self.style
         )
         self._compiled = compiled_step(self, compile) if compile else None
         # eager steps in the static form (no host read; bit-identical, more work: a sync-free loop on a GPU)
         self.static = False
+        if processes > 1:
+            self._processes = WorldProcesses(self, processes)
+
+    @property
+    def state(self) -> WorldState:
+        return self._state
+
+    @state.setter
+    def state(self, new: WorldState) -> None:
+        """Replace the state; with worker processes, copied into the shared tensors they step (same shapes)."""
+        if self._processes is None:
+            self._state = new
+            return
+        for f in fields(new):
+            mine, theirs = getattr(self._state, f.name), getattr(new, f.name)
+            if mine.shape != theirs.shape:
+                raise ValueError(f"state field {f.name} has shape {tuple(theirs.shape)}, this world's "
+                                 f"{tuple(mine.shape)}")
+            mine.copy_(theirs)
+
+    def envs_view(self, lo: int, hi: int) -> "World":
+        """A World over envs lo..hi-1 of this one (eager), on views of this world's state tensors: stepping
+        or resetting the view steps or resets those envs of this world in place."""
+        view = copy.copy(self)
+        view.num_envs, view._compiled, view._processes = hi - lo, None, None
+        view._state = WorldState(**{f.name: getattr(self._state, f.name)[lo:hi] for f in fields(self._state)})
+        return view
+
+    @property
+    def worker_pids(self) -> list[int]:
+        """The process ids of the worker processes (processes > 1), else []."""
+        return [] if self._processes is None else [p.pid for p in self._processes.procs]
+
+    def close(self) -> None:
+        """End the worker processes (processes > 1); the world then steps no more. A no-op otherwise."""
+        if self._processes is not None:
+            self._processes.close()
+
+    def _in_processes(self, op: str) -> None:
+        self._processes.call(op, {"static": self.static, "adversarial": self.adversarial,
+                                  "adversary": self.adversary, "max_steps": self.max_steps})
 
     # ------------------------------------------------------------------ episodes
     @inference_mode_when_eager
@@ -165,6 +215,11 @@ class World:
         s = self.state
         if self._compiled is not None and mask is not None:
             self._compiled.reset(mask)
+            return
+        if self._processes is not None:
+            if mask is not None:
+                self._processes.mask.copy_(mask.reshape(self.num_envs))
+            self._in_processes("reset_all" if mask is None else "reset")
             return
         idx = torch.arange(self.num_envs, device=self.device) if mask is None else mask.nonzero().squeeze(1)
         if idx.numel() == 0:
@@ -178,6 +233,10 @@ class World:
         values; compiled worlds always reset this way). Costs a spawn of every env."""
         if self._compiled is not None:
             self._compiled.reset(mask.reshape(self.num_envs))
+            return
+        if self._processes is not None:
+            self._processes.mask.copy_(mask.reshape(self.num_envs))
+            self._in_processes("reset_where")
             return
         fresh = self.spawn_where(self.state, mask)
         torch._foreach_copy_(list(astuple_shallow(self.state)), list(astuple_shallow(fresh)))
@@ -193,8 +252,16 @@ class World:
         target_lane, target_speed = self._commands(target_lane, target_speed)
         if self._compiled is not None:
             return self._compiled.step(target_lane, target_speed)
+        if self._processes is not None:
+            return self._step_in_processes("step", target_lane, target_speed)
         return step_state(s, self.road, self._lane_tables, self.layout, self.level, target_lane, target_speed,
                           self.active_adversary, self.max_steps, static=self.static)
+
+    def _step_in_processes(self, op: str, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
+        self._processes.lane.copy_(target_lane)
+        self._processes.speed.copy_(target_speed)
+        self._in_processes(op)
+        return StepEvents(**{name: buf.clone() for name, buf in self._processes.events.items()})
 
     @property
     def active_adversary(self) -> str | None:
@@ -212,6 +279,8 @@ class World:
         when compiled; eager, a reset only when some env is done (a host read)."""
         if self._compiled is not None:
             return self._compiled.step_and_reset(*self._commands(target_lane, target_speed))
+        if self._processes is not None:
+            return self._step_in_processes("step_and_reset", *self._commands(target_lane, target_speed))
         events = self.step(target_lane, target_speed)
         done = events.terminated | events.truncated
         if bool(done.any()):

@@ -28,6 +28,9 @@ def run(capsys, *argv):
         (["evaluate", "does/not/exist"], "does not exist"),
         (["render", "--policy", "teleport", "--out", "x.gif"], "unknown policy 'teleport'"),
         (["evaluate", ".", "--traffic", "A..Z"], "unknown traffic range"),
+        (["bench", "sim", "--envs", "2", "--steps", "1", "--processes", "3"], "between 1 and num_envs (2)"),
+        (["bench", "sim", "--envs", "2", "--steps", "1", "--processes", "2", "--compile"], "processes > 1"),
+        (["bench", "train", "--envs", "2", "--steps", "1", "--processes", "2"], "--processes is for bench sim"),
     ],
 )
 def test_bad_input_gives_one_line_error_naming_the_value(capsys, argv, needle, tmp_path, monkeypatch):
@@ -47,6 +50,12 @@ def test_bench_sim_prints_json(capsys):
     code, out, _ = run(capsys, "bench", "sim", "--envs", "8", "--steps", "5", "--json")
     result = json.loads(out)
     assert code == 0 and result["env_steps_per_s"] > 0 and result["envs"] == 8
+
+
+def test_bench_sim_in_worker_processes_prints_json(capsys):
+    code, out, _ = run(capsys, "bench", "sim", "--envs", "8", "--steps", "5", "--processes", "2", "--json")
+    result = json.loads(out)
+    assert code == 0 and result["env_steps_per_s"] > 0 and result["processes"] == 2
 
 
 def test_render_writes_gif_and_png(capsys, tmp_path):
