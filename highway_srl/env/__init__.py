@@ -49,8 +49,9 @@ def env_spec(scenario: str, **kwargs) -> gymnasium.envs.registration.EnvSpec:
 class _Batch:
     """World + rule layer for B envs with per-env seeds; shared by the single and the vector env."""
 
-    def __init__(self, scenario, traffic, adversarial, num_envs, device, seed, max_steps=EPISODE_STEPS):
-        self.world = World(scenario, traffic, adversarial, num_envs, device, seed, max_steps=max_steps)
+    def __init__(self, scenario, traffic, adversarial, num_envs, device, seed, max_steps=EPISODE_STEPS, processes=1):
+        self.world = World(scenario, traffic, adversarial, num_envs, device, seed, max_steps=max_steps,
+                           processes=processes)
         self.layer = SafetyLayer(self.world.road)
         self.step_view = self.layer.observe(self.world)
 
@@ -153,14 +154,19 @@ class HighwayVectorEnv(VectorEnv):
     Gymnasium's "_key" masks, valid where info["_final_info"] is True. Since a collision ends the episode,
     count collisions (and the exit's terminal success) in final_info: the top-level info of a restarted
     env describes its new episode, where nothing has happened yet.
+
+    processes: World(processes=...), the simulator's step in that many worker processes (CPU; the rule
+    layer stays in this one); close() ends them.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": ["rgb_array"], "render_fps": RENDER_FPS}
 
     def __init__(self, scenario: str = "two-lane", traffic: str = "C", adversarial: bool = False, num_envs: int = 2,
-                 device: str = "cpu", render_mode: str | None = None, max_episode_steps: int = EPISODE_STEPS):
+                 device: str = "cpu", render_mode: str | None = None, max_episode_steps: int = EPISODE_STEPS,
+                 processes: int = 1):
         _check_render_mode(render_mode)
-        self._batch = _Batch(scenario, traffic, adversarial, num_envs, device, seed=0, max_steps=max_episode_steps)
+        self._batch = _Batch(scenario, traffic, adversarial, num_envs, device, seed=0, max_steps=max_episode_steps,
+                             processes=processes)
         self.num_envs = num_envs
         self.single_observation_space = _obs_space()
         self.single_action_space = spaces.Discrete(len(ACTIONS))
@@ -168,7 +174,8 @@ class HighwayVectorEnv(VectorEnv):
         self.action_space = spaces.MultiDiscrete([len(ACTIONS)] * num_envs)
         self.render_mode = render_mode
         self.spec = dataclasses.replace(
-            env_spec(scenario, traffic=traffic, adversarial=adversarial, device=device, num_envs=num_envs),
+            env_spec(scenario, traffic=traffic, adversarial=adversarial, device=device, num_envs=num_envs,
+                     processes=processes),
             max_episode_steps=max_episode_steps)
 
     def reset(self, *, seed: int | list[int] | None = None, options: dict | None = None):
@@ -201,6 +208,9 @@ class HighwayVectorEnv(VectorEnv):
     def action_masks(self) -> np.ndarray:
         """(B, 4) bool, Table 1's safe set of each env's current state (= info["action_mask"])."""
         return host(self._batch.step_view.primary.mask)
+
+    def close_extras(self, **kwargs) -> None:
+        self._batch.world.close()
 
     def render(self):
         """Env 0's frame, (H, W, 3) uint8, if render_mode is "rgb_array" (else None): drawing every env

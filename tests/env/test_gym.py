@@ -128,3 +128,20 @@ def test_vector_env_renders_env_zero():
     frame = envs.render()
     assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
     assert highway_srl.make("exit", num_envs=3).render() is None
+
+
+def test_vector_env_in_worker_processes_gives_the_same_steps():
+    one = HighwayVectorEnv("merge", "D", num_envs=5, max_episode_steps=20)
+    two = HighwayVectorEnv("merge", "D", num_envs=5, max_episode_steps=20, processes=2)
+    try:
+        for env in (one, two):
+            env.reset(seed=3)
+        actions = np.random.default_rng(0).integers(0, 4, size=(45, 5))
+        for a in actions:  # past two truncations: the autoreset runs in the workers too
+            out_one, out_two = one.step(a), two.step(a)
+            for x, y in zip(out_one[:4], out_two[:4]):
+                assert np.array_equal(x, y)
+            assert out_one[4].keys() == out_two[4].keys()
+    finally:
+        two.close()
+    assert two.spec.kwargs["processes"] == 2
