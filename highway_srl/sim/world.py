@@ -189,6 +189,8 @@ class World:
     def envs_view(self, lo: int, hi: int) -> "World":
         """A World over envs lo..hi-1 of this one (eager), on views of this world's state tensors: stepping
         or resetting the view steps or resets those envs of this world in place."""
+        if not 0 <= lo < hi <= self.num_envs:
+            raise ValueError(f"envs_view needs 0 <= lo < hi <= {self.num_envs}, got {lo}, {hi}")
         view = copy.copy(self)
         view.num_envs, view._compiled, view._processes = hi - lo, None, None
         view._state = WorldState(**{f.name: getattr(self._state, f.name)[lo:hi] for f in fields(self._state)})

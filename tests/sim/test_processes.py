@@ -99,6 +99,20 @@ def test_the_state_edited_or_replaced_here_is_what_the_workers_step():
         b.close()
 
 
+def test_a_view_steps_its_envs_of_the_world_in_place():
+    whole, part = World("exit", "D", num_envs=ENVS, seed=2), World("exit", "D", num_envs=ENVS, seed=2)
+    view = part.envs_view(2, 5)
+    for t in range(30):
+        lane, speed = _commands(whole, t)
+        whole.step_and_reset(lane, speed)
+        view.step_and_reset(lane[2:5], speed[2:5])
+    for f in fields(whole.state):
+        assert torch.equal(getattr(whole.state, f.name)[2:5], getattr(part.state, f.name)[2:5]), f.name
+    assert torch.equal(part.state.t[:2], torch.zeros(2, dtype=torch.long)), "envs outside the view moved"
+    with pytest.raises(ValueError, match="envs_view needs 0 <= lo < hi <= 7"):
+        part.envs_view(3, 3)
+
+
 def test_slices_cover_the_batch_in_near_equal_parts():
     assert slices(7, 3) == [(0, 2), (2, 4), (4, 7)]
     assert slices(4096, 2) == [(0, 2048), (2048, 4096)]
