@@ -7,10 +7,12 @@ Parts, in order: the GPU tests; the simulator eager at 4,096 / 65,536 / 262,144 
 level F, merge, adversarial exit at 65,536; training MoE-RM-SRL at 1 and 10 seeds (16 envs each) at
 Algorithm 1's update rate (one gradient step per env step), eager (the static, sync-free step: the CUDA
 default) and compiled (CUDA graphs, the split step: docs/benchmarks.md); the simulator compiled, same sizes;
-last, if the budget is left, 1 seed compiled with the update rounds unrolled into one graph. Each part runs
-in its own process with a time limit from the overall budget, so a failure, a hang or a part that does not
-fit still leaves the others' figures and the JSON. Projections: the paper run (5e5 env steps, one seed) and the whole study
-(43 jobs x 10 seeds x 5e5 steps, the 10 seeds batched), from the eager and from the compiled training.
+the host's CPU cores: one world of 65,536 envs in a process per core (World(processes=P)) against one
+process of all threads; last, if the budget is left, 1 seed compiled with the update rounds unrolled into
+one graph. Each part runs in its own process with a time limit from the overall budget, so a failure, a
+hang or a part that does not fit still leaves the others' figures and the JSON. Projections: the paper run
+(5e5 env steps, one seed) and the whole study (43 jobs x 10 seeds x 5e5 steps, the 10 seeds batched), from
+the eager and from the compiled training.
 
 Without a CUDA device it falls back to the smoke run (a note on stderr, "cpu_smoke": true in the JSON).
 Needs only torch, numpy and pytest (no gymnasium: the GPU machine has none).
@@ -53,6 +55,10 @@ def plan(smoke: bool) -> list[dict]:
             args = ["--part", "sim", "--scenario", sc, "--traffic", tr, "--envs", str(envs), "--steps", steps]
             args += ["--adversarial"] * adv + ["--compiled"] * compiled
             parts.append({"name": name, "cap_s": 200 if compiled else 60, "args": args})
+    # the host's CPU: a GPU machine's many cores are where World(processes=P) shows how it scales
+    parts.append({"name": f"sim-two-lane-C-{4 if smoke else 65_536}-cpu-processes", "cap_s": 90,
+                  "args": ["--part", "cpu-processes", "--envs", "4" if smoke else "65536",
+                           "--steps", "1" if smoke else "20"]})
     if not smoke:  # the rounds unrolled into one graph (TrainConfig.compile_unrolled), against the split
         # default: one replay per step instead of 1 + rounds; last, as it compiles longest
         parts.append({"name": train_part(1, "compiled") + "-unrolled", "cap_s": 240,
@@ -78,9 +84,23 @@ def run_part(args) -> dict:
         how = ("eager" if args.cpu_smoke else True) if args.compiled else False  # smoke: capture, no codegen
         return bench_sim(args.scenario, args.traffic, args.envs, args.steps, device, args.adversarial,
                          warmup=1 if args.cpu_smoke else 10, compile=how)
+    if args.part == "cpu-processes":
+        return bench_cpu_processes(args.envs, args.steps, args.cpu_smoke)
     if args.part == "train":
         return bench_training(args.seeds, args.steps, device, args.cpu_smoke, args.compiled, args.unrolled)
     raise ValueError(f"unknown part {args.part!r}")
+
+
+def bench_cpu_processes(envs: int, steps: int, smoke: bool) -> dict:
+    """The simulator on the CPU, eager: one process with torch's threads against a process per core."""
+    from highway_srl.experiments.bench import bench_sim
+
+    cores = 2 if smoke else min(os.cpu_count() or 1, 16)
+    one = bench_sim("two-lane", "C", envs, steps, "cpu", warmup=1 if smoke else 3)
+    many = bench_sim("two-lane", "C", envs, steps, "cpu", warmup=1 if smoke else 3, processes=cores)
+    return {"envs": envs, "processes": cores, "one_process_env_steps_per_s": one["env_steps_per_s"],
+            "one_process_threads": one["machine"]["threads"], "processes_env_steps_per_s": many["env_steps_per_s"],
+            "over_one_process": round(many["env_steps_per_s"] / one["env_steps_per_s"], 3), "machine": one["machine"]}
 
 
 def train_part(seeds: int, how: str) -> str:

@@ -46,6 +46,8 @@ def test_device_check_without_a_gpu_runs_the_cpu_smoke_and_writes_every_part_and
     trains = {f"train-moe-rm-srl-{n}-seeds{how}" for n in (1, 10) for how in ("", "-compiled")}
     assert {"gpu-tests", *trains} <= set(statuses)
     assert any(name.startswith("sim-") and name.endswith("-compiled") for name in statuses)
+    cpu = report["parts"]["sim-two-lane-C-4-cpu-processes"]["result"]
+    assert cpu["processes"] == 2 and cpu["processes_env_steps_per_s"] > 0 and cpu["over_one_process"] > 0
     projected = report["projections"]
     assert projected["study_h"] > 0 and projected["eager"]["study_h"] > 0 and projected["compiled"]["study_h"] > 0
     assert report["parts"]["gpu-tests"]["result"]["returncode"] == 0
