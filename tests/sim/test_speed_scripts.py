@@ -17,12 +17,13 @@ def _run(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_ab_sim_compares_batch_sizes_and_settings_of_one_checkout():
-    done = _run("scripts/ab_sim.py", ".", ".", "--envs", "1,3", "--processes", "1", "--rounds", "2", "--block", "2",
-                "--env-a", "HIGHWAY_SRL_DEFAULT_MALLOC=1")
+    done = _run("scripts/ab_sim.py", ".", ".", "--envs", "2,3", "--processes", "1", "--rounds", "2", "--block", "2",
+                "--env-a", "HIGHWAY_SRL_DEFAULT_MALLOC=1", "--env-b", "AB_WORLD_PROCESSES=2")
     assert done.returncode == 0, done.stderr
     out = json.loads(done.stdout)
     assert [(s["envs"], s["env"]) for s in out["sides"]] == [
-        (1, ["HIGHWAY_SRL_DEFAULT_MALLOC=1"]), (3, ["HIGHWAY_SRL_DEFAULT_MALLOC=1"]), (1, []), (3, [])]
+        (2, ["HIGHWAY_SRL_DEFAULT_MALLOC=1"]), (3, ["HIGHWAY_SRL_DEFAULT_MALLOC=1"]),
+        (2, ["AB_WORLD_PROCESSES=2"]), (3, ["AB_WORLD_PROCESSES=2"])]
     assert all(s["mean_env_steps_per_s"] > 0 and len(s["process_medians"]) == 1 for s in out["sides"])
     assert out["sides"][0]["over_first"] == 1.0
 
