@@ -22,9 +22,6 @@ import weakref
 
 import torch
 
-EVENT_DTYPES = {"collision": torch.bool, "success": torch.bool, "failure": torch.bool, "terminated": torch.bool,
-                "truncated": torch.bool, "sv_collisions": torch.long}  # the fields of world.StepEvents
-
 
 def check_processes(processes, num_envs: int, compile, device: torch.device) -> None:
     """World's processes argument, or a one-line ValueError."""
@@ -41,9 +38,10 @@ def slices(num_envs: int, processes: int) -> list[tuple[int, int]]:
 
 
 class WorldProcesses:
-    """Worker processes that step the envs of `world` in slices (see the module's docstring)."""
+    """Worker processes that step the envs of `world` in slices (see the module's docstring); event_dtypes:
+    the step's events by name and dtype (world.STEP_EVENT_DTYPES), one shared (B,) buffer each."""
 
-    def __init__(self, world, processes: int):
+    def __init__(self, world, processes: int, event_dtypes: dict[str, torch.dtype]):
         try:
             ctx = multiprocessing.get_context("fork")
         except ValueError:
@@ -54,7 +52,7 @@ class WorldProcesses:
         self.lane = torch.zeros(b, dtype=torch.long).share_memory_()
         self.speed = torch.zeros(b, dtype=torch.float32).share_memory_()
         self.mask = torch.zeros(b, dtype=torch.bool).share_memory_()
-        self.events = {name: torch.zeros(b, dtype=dtype).share_memory_() for name, dtype in EVENT_DTYPES.items()}
+        self.events = {name: torch.zeros(b, dtype=dtype).share_memory_() for name, dtype in event_dtypes.items()}
         self.conns, self.procs = [], []
         for lo, hi in slices(b, processes):
             parent_end, child_end = ctx.Pipe()

@@ -49,6 +49,11 @@ class StepEvents:
     sv_collisions: torch.Tensor  # (B,) long, SV-SV pairs whose boxes overlap after this step (nominal traffic: 0)
 
 
+# StepEvents' fields and dtypes, for those that allocate them before a step (the worker processes' buffers)
+STEP_EVENT_DTYPES = {"collision": torch.bool, "success": torch.bool, "failure": torch.bool, "terminated": torch.bool,
+                     "truncated": torch.bool, "sv_collisions": torch.long}
+
+
 @dataclass
 class StageFlags:
     """The task's latched stages of the current episodes, (B,) bool each (§4.3's r_merge, r_exit,1, r_exit,2;
@@ -167,7 +172,7 @@ class World:
         # eager steps in the static form (no host read; bit-identical, more work: a sync-free loop on a GPU)
         self.static = False
         if processes > 1:
-            self._processes = WorldProcesses(self, processes)
+            self._processes = WorldProcesses(self, processes, STEP_EVENT_DTYPES)
 
     @property
     def state(self) -> WorldState:

@@ -15,6 +15,7 @@ import torch
 from highway_srl.sim import World
 from highway_srl.sim.policies import idm_ego
 from highway_srl.sim.processes import slices
+from highway_srl.sim.world import STEP_EVENT_DTYPES
 
 ENVS = 7  # not a multiple of the processes: slices of unequal size
 
@@ -111,6 +112,11 @@ def test_a_view_steps_its_envs_of_the_world_in_place():
     assert torch.equal(part.state.t[:2], torch.zeros(2, dtype=torch.long)), "envs outside the view moved"
     with pytest.raises(ValueError, match="envs_view needs 0 <= lo < hi <= 7"):
         part.envs_view(3, 3)
+
+
+def test_the_workers_event_buffers_have_the_fields_and_dtypes_of_a_step():
+    events = World("merge", "C", num_envs=3, seed=1).step(torch.zeros(3, dtype=torch.long), torch.full((3,), 20.0))
+    assert {f.name: getattr(events, f.name).dtype for f in fields(events)} == STEP_EVENT_DTYPES
 
 
 def test_slices_cover_the_batch_in_near_equal_parts():
