@@ -118,8 +118,9 @@ def neighbour_keys(occupancy: torch.Tensor, order: torch.Tensor) -> tuple[torch.
 
 
 def followers_of(behind_keys: torch.Tensor, rank: torch.Tensor, k, b, i) -> torch.Tensor:
-    """Nearest occupant behind vehicle i of env b in lane k (all (M,) long), N where there is none;
-    behind_keys from neighbour_keys, rank from inverse_order."""
+    """Nearest occupant behind vehicle i of env b in lane k, N where there is none (b, i (M,) long; k (M,)
+    or (L, M), lanes asked at once: the vehicle's rank is read once); behind_keys from neighbour_keys, rank
+    from inverse_order."""
     _, n_envs, n1 = behind_keys.shape
     # flat reads, not behind_keys[k, b, rank[b, i]]: advanced indexing with three index tensors takes a slow
     # general path on the CPU

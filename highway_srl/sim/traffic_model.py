@@ -77,7 +77,8 @@ class Neighbours:
     rank: torch.Tensor  # (B, N) position of each vehicle in x order
 
     def follower(self, k: torch.Tensor, b: torch.Tensor, i: torch.Tensor) -> torch.Tensor:
-        """The follower of vehicle i of env b in lane k (all (M,)), N where there is none."""
+        """The follower of vehicle i of env b in lane k (b, i (M,); k (M,) or (L, M) for several lanes at
+        once), N where there is none."""
         return followers_of(self.behind_keys, self.rank, k, b, i)
 
 
@@ -221,32 +222,28 @@ def mobil_lane_changes(s: WorldState, road: Road, tables: LaneTables, nb: Neighb
     k_lanes = road.num_lanes
     idx, decide, lane, intent, on_ramp_merge = _deciders(s, road)
     bb, jj, sel = entries(decide, static)
-    m = bb.numel()
     if none_left(bb, sel):
         return
     ii = idx[bb, jj]
     flat1 = bb * n + ii
     lane1, intent1, merge1 = lane[bb, jj], intent[bb, jj], on_ramp_merge[bb, jj]
-    # both directions side by side: candidate c < m goes left (-1), c >= m right (+1)
-    d = torch.cat([torch.full_like(lane1, -1), torch.full_like(lane1, 1)])
-    two = lambda t: torch.cat([t, t])  # noqa: E731
-    bb2, flat, lane, intent, on_ramp_merge = two(bb), two(flat1), two(lane1), two(intent1), two(merge1)
-    x, v, v0, s0, alc = (two(take_flat(t, flat1)) for t in (s.x, s.v, s.v0, s.s0, s.lane_change))
-    a_cur = two(take_flat(accel, flat1))
-    to = lane + d
-    ok = tables.can_change(x, lane, to, v * LANE_CHANGE_TIME_S)
-    ok &= (to < road.mainline_lanes) | (intent == EXIT_INTENT)  # only cars bound for the off-ramp enter it
+    # both directions at once: row 0 of the (2, M) candidates goes left (-1), row 1 right (+1); what does not
+    # depend on the direction stays (M,) and broadcasts
+    d = torch.tensor([[-1], [1]], device=lane1.device)
+    x, v, v0, s0, alc, a_cur = (take_flat(t, flat1) for t in (s.x, s.v, s.v0, s.s0, s.lane_change, accel))
+    to = lane1 + d
+    ok = tables.can_change(x, lane1, to, v * LANE_CHANGE_TIME_S)
+    ok &= (to < road.mainline_lanes) | (intent1 == EXIT_INTENT)  # only cars bound for the off-ramp enter it
     toc = to.clamp(0, k_lanes - 1)
-    flat_k = toc * (b_envs * n) + flat
-    nl, nf = take_flat(nb.leader, flat_k), nb.follower(toc, bb2, two(ii))
-    row = bb2 * (n + 1)
+    nl, nf = take_flat(nb.leader, toc * (b_envs * n) + flat1), nb.follower(toc, bb, ii)
+    row = bb * (n + 1)
     nl_x, nl_v = take_flat(nb.x_pad, row + nl), take_flat(nb.v_pad, row + nl)
     g_front = nl_x - x - VEHICLE_LENGTH_M
     wall = tables.drop_end_m[toc] - x - 0.5 * VEHICLE_LENGTH_M
     use_wall = wall < g_front
     a_new = idm_accel_fast(idm_free_term(v, v0), v, s0, torch.minimum(wall, g_front), torch.where(use_wall, 0.0, nl_v))
     has_nf = nf < n
-    nf_flat = bb2 * n + nf.clamp(max=n - 1)
+    nf_flat = bb * n + nf.clamp(max=n - 1)
     nf_x = torch.where(has_nf, take_flat(s.x, nf_flat), -FAR_M)
     nf_v, nf_v0, nf_s0 = take_flat(s.v, nf_flat), take_flat(s.v0, nf_flat), take_flat(s.s0, nf_flat)
     nf_free = idm_free_term(nf_v, nf_v0)
@@ -257,12 +254,12 @@ def mobil_lane_changes(s: WorldState, road: Road, tables: LaneTables, nb: Neighb
     safe = (g_front > MOBIL_MIN_GAP_M) & (g_back > MOBIL_MIN_GAP_M) & (a_new >= -MOBIL_SAFE_BRAKE_MPS2)
     safe &= ~has_nf | (a_nf_new >= nf_limit)
     gain = a_new - a_cur + MOBIL_POLITENESS * has_nf.float() * (a_nf_new - a_nf_old) - MOBIL_THRESHOLD_MPS2
-    mandatory = (on_ramp_merge & (d < 0)) | ((intent == EXIT_INTENT) & (d > 0))
-    against = (intent == EXIT_INTENT) & (d < 0)
+    mandatory = (merge1 & (d < 0)) | ((intent1 == EXIT_INTENT) & (d > 0))
+    against = (intent1 == EXIT_INTENT) & (d < 0)
     gain = gain + MANDATORY_BONUS_MPS2 * (mandatory.float() - against.float())
     gain = torch.where(ok & safe & (alc | mandatory) & (gain > 0), gain, -math.inf)
-    left, right = gain[:m], gain[m:]
-    best = torch.where(right > left, toc[m:], toc[:m])  # ties go left, as MOBIL prefers overtaking lanes
+    left, right = gain[0], gain[1]
+    best = torch.where(right > left, toc[1], toc[0])  # ties go left, as MOBIL prefers overtaking lanes
     change = torch.maximum(left, right) > -math.inf
     _write_targets(s, flat1, sel, torch.where(change, best, lane1))
 
