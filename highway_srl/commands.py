@@ -220,8 +220,11 @@ def _cmd_demo(args) -> int:
 
 
 def _cmd_reproduce(args) -> int:
-    from highway_srl.study.runner import reproduce
+    from highway_srl.study.runner import report_only, reproduce
 
+    if args.report_only:
+        print(f"report: {report_only(args.out, args.budget)}")
+        return 0
     if args.budget is None:
         raise ValueError("choose a budget: --budget smoke, quick or paper (see highway-srl reproduce --help)")
     executor = _executor(args)
@@ -413,6 +416,9 @@ def _add_reproduce(sub) -> None:
     p.add_argument("--profiles", default=None, help="control profiles, comma-separated, paper first: paper (the "
                    "reproduction) and safe (our safety additions, reported as 'beyond the paper'); default: the "
                    "budget's (smoke: paper; quick and paper: paper,safe)")
+    p.add_argument("--report-only", action="store_true", help="run nothing: write the tables, figures and "
+                   "report of the study in --out from the jobs finished so far (say, while it runs in another "
+                   "process); the other options are not needed")
     p.set_defaults(func=_cmd_reproduce)
 
 

@@ -376,6 +376,25 @@ def reproduce(budget: str, out: str | Path, jobs: int | None = None, executor: s
     return state
 
 
+def report_only(out: str | Path, budget: str | None = None) -> Path:
+    """The tables, figures and report of the study in `out` from the jobs finished so far; runs nothing.
+
+    Why: a paper-budget study takes days; this shows where it stands (unfinished jobs are '–' cells and the
+    report counts them) while it runs in another process or after a stop. study.json is only read, never
+    written, so a running study's record is not disturbed; its own report, at its end, replaces this one.
+    budget: if given, it must be the study's (the same command line as the study's, plus --report-only).
+    """
+    from highway_srl.study.report import write_report
+
+    out = Path(out)
+    state = open_state(out, STUDY_FILE, "study")
+    if state is None:
+        raise ValueError(f"--out {str(out)!r} holds no study (study.json): start one with reproduce --budget ...")
+    if budget is not None and state.get("budget") != budget:
+        raise ValueError(f"--out {str(out)!r} holds a study of budget {state.get('budget')!r}, not {budget!r}")
+    return write_report(out)
+
+
 def _budget_with(b: Budget, seeds: tuple[int, ...] | None, profiles: tuple[str, ...] | None) -> Budget:
     """The budget with reproduce's --seeds / --profiles, checked (ValueError names the bad value)."""
     from dataclasses import replace

@@ -143,6 +143,33 @@ def test_bad_input_gives_a_one_line_error(tmp_path, capsys):
     assert json.loads((root / "study.json").read_text())["budget"] == "smoke"
 
 
+def test_report_only_writes_the_report_of_the_jobs_done_so_far_and_runs_nothing(tmp_path, capsys):
+    root = tmp_path / "study"
+    reproduce("smoke", root, jobs=1, work=fakes.fake_work, methods=(OURS,), **QUIET)
+    state = json.loads((root / "study.json").read_text())
+    first = next(iter(state["jobs"]))  # as in a study still running: one job not finished yet
+    state["jobs"][first]["status"] = "pending"
+    (root / "study.json").write_text(json.dumps(state))
+    folder = root / study_jobs("smoke", methods=(OURS,))[0].folder
+    (folder / "eval.json").unlink()
+    before, n = (root / "study.json").read_bytes(), len(fakes.calls(root))
+
+    assert main(["reproduce", "--out", str(root), "--report-only"]) == 0
+    assert capsys.readouterr().out.strip() == f"report: {root / 'report.md'}"
+    assert f"jobs: {len(state['jobs']) - 1} done, 1 pending" in (root / "report.md").read_text()
+    assert (root / "tables").is_dir() and (root / "report.html").exists()
+    assert (root / "study.json").read_bytes() == before and len(fakes.calls(root)) == n  # read only, ran nothing
+
+    rc, err = _cli(capsys, "--budget", "quick", "--out", str(root), "--report-only")
+    assert rc == 2 and len(err) == 1 and "holds a study of budget 'smoke', not 'quick'" in err[0]
+    (tmp_path / "busy").mkdir()
+    (tmp_path / "busy" / "notes.txt").write_text("mine")
+    for folder in ("new", "busy"):
+        rc, err = _cli(capsys, "--out", str(tmp_path / folder), "--report-only")
+        assert rc == 2 and len(err) == 1 and "holds no study" in err[0], err
+    assert not (tmp_path / "new").exists() and (tmp_path / "busy" / "notes.txt").read_text() == "mine"
+
+
 def test_backend_flag_is_a_deprecated_alias_of_executor_with_a_one_line_note(tmp_path, capsys):
     rc, err = _cli(capsys, "--budget", "smoke", "--backend", "slurm", "--out", str(tmp_path / "new"))
     assert rc == 2 and len(err) == 2 and "deprecated" in err[0] and "unknown executor 'slurm'" in err[1]
