@@ -6,7 +6,9 @@ Why count: on the CPU each eager operation costs a fixed 5-10 us of dispatch (Py
 the kernel's setup) whatever its size, so at small batches the step's time is its operation count; and a
 count, unlike a timing, does not depend on how busy the machine is. Views (reshape, select, expand, ...) are
 not counted: they launch no kernel. Prints one JSON object: the mean count per step and the count per
-innermost highway_srl function.
+innermost highway_srl function. --times adds where the time goes: the wall time per step (timed alone)
+and, from the torch profiler over as many steps, each ATen operation's calls and self time per step (the
+time inside the operation, dispatch included; the profiler itself slows the step a little).
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from __future__ import annotations
 import argparse
 import collections
 import json
+import time
 import traceback
 
 import torch
@@ -44,6 +47,8 @@ def main() -> None:
     parser.add_argument("--scenario", default="two-lane")
     parser.add_argument("--traffic", default="C")
     parser.add_argument("--steps", type=int, default=10)
+    parser.add_argument("--times", action="store_true", help="also the wall time per step and the profiler's "
+                        "self time per operation")
     args = parser.parse_args()
     if args.envs < 1 or args.steps < 1:
         parser.error("--envs and --steps are positive integers")
@@ -56,9 +61,30 @@ def main() -> None:
         for _ in range(args.steps):
             world.step_and_reset(world.ego_lane, speed)
     per_step = {k: round(v / args.steps, 1) for k, v in counter.by_function.most_common()}
-    print(json.dumps({"envs": args.envs, "scenario": args.scenario, "traffic": args.traffic,
-                      "ops_per_step": round(sum(counter.by_function.values()) / args.steps, 1),
-                      "by_function": per_step}))
+    result = {"envs": args.envs, "scenario": args.scenario, "traffic": args.traffic,
+              "ops_per_step": round(sum(counter.by_function.values()) / args.steps, 1), "by_function": per_step}
+    if args.times:
+        result.update(step_times(world, speed, args.steps))
+    print(json.dumps(result))
+
+
+def step_times(world: World, speed: torch.Tensor, steps: int) -> dict:
+    """Wall ms per step, and per ATen operation its calls and self ms per step under the profiler (top 20)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        world.step_and_reset(world.ego_lane, speed)
+    wall_ms = 1e3 * (time.perf_counter() - t0) / steps
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for _ in range(steps):
+            world.step_and_reset(world.ego_lane, speed)
+    ops = [e for e in prof.key_averages() if e.key.startswith("aten::")]
+    ops.sort(key=lambda e: -e.self_cpu_time_total)
+    return {"wall_ms_per_step": round(wall_ms, 2),
+            "profiled_self_ms_per_step": round(sum(e.self_cpu_time_total for e in ops) / 1e3 / steps, 2),
+            "by_op": {e.key[6:]: {"calls": round(e.count / steps, 1),
+                                  "self_ms": round(e.self_cpu_time_total / 1e3 / steps, 3)} for e in ops[:20]}}
 
 
 if __name__ == "__main__":

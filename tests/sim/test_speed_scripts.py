@@ -35,11 +35,14 @@ def test_ab_sim_bad_input_is_one_line():
         assert done.stderr.strip().splitlines()[-1].startswith("ab_sim.py: error:")
 
 
-def test_ops_per_step_counts_the_step_by_function():
-    done = _run("scripts/ops_per_step.py", "--envs", "2", "--steps", "2")
+def test_ops_per_step_counts_the_step_by_function_and_times_it():
+    done = _run("scripts/ops_per_step.py", "--envs", "2", "--steps", "2", "--times")
     assert done.returncode == 0, done.stderr
     out = json.loads(done.stdout)
     # the step's own functions are where its operations are; the total is their sum
     assert {"mobil_lane_changes", "lateral", "idm_accel_fast"} <= set(out["by_function"])
     assert abs(sum(out["by_function"].values()) - out["ops_per_step"]) < 1.0
     assert 100 < out["ops_per_step"] < 5000
+    # --times: the wall time per step and the profiler's busiest operations, each with its calls per step
+    assert out["wall_ms_per_step"] > 0 and 0 < len(out["by_op"]) <= 20
+    assert all(v["calls"] > 0 and v["self_ms"] >= 0 for v in out["by_op"].values())
