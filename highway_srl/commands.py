@@ -151,7 +151,10 @@ def _cmd_train(args) -> int:
             return 0
     else:
         cfg = train_config(args)
-        make_method(cfg.method, cfg.scenario, len(cfg.seeds), cfg.options)  # validate the name early
+        method = make_method(cfg.method, cfg.scenario, len(cfg.seeds), cfg.options)  # validate the name early
+        if method.trains and cfg.dqn.learning_starts > cfg.steps:  # legal, but rarely what was meant
+            print(f"note: learning starts after {cfg.dqn.learning_starts:,} env steps, more than --steps "
+                  f"{cfg.steps:,}: this run takes no gradient step (set --learning-starts)", file=sys.stderr)
     try:
         metrics = train_run(cfg, out, resume=args.resume, checkpoint_every=args.checkpoint_every,
                             progress=not args.quiet)
@@ -164,8 +167,9 @@ def _cmd_train(args) -> int:
     m = metrics["mean"]
     tc = "n/a" if m["T_c"] is None else f"{m['T_c']:.3f}"
     tr = "n/a" if m["T_r"] is None else f"{m['T_r']:.1f}"
+    rise = "n/a" if m["rise_time_steps"] is None else f"{m['rise_time_steps']:,.0f} steps"
     print(f"trained {metrics['method']} on {metrics['scenario']} level {metrics['traffic']}: T_c {tc}, T_r {tr}, "
-          f"rise time {m['rise_time_steps']} steps, {metrics['wall_s']:.0f} s ({metrics['env_steps_per_s']:,.0f} env-steps/s)")
+          f"rise time {rise}, {metrics['wall_s']:.0f} s ({metrics['env_steps_per_s']:,.0f} env-steps/s)")
     print(f"run folder: {args.out}")
     return 0
 

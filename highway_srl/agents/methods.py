@@ -33,6 +33,7 @@ class Method:
     profile: the control profile of every rule layer the method makes (rules.PROFILES: "paper", "safe")."""
 
     name = "base"
+    trains = True  # False: nothing is learned (the rule-based driver)
     out_dim = 4
     uses_cost = False
     layer_options: dict = {}

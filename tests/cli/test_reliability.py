@@ -341,6 +341,16 @@ def test_progress_bar_ends_at_its_total_and_interrupt_message_has_its_own_line(c
     assert "50/50" in err and "56/50" not in err  # 7 vector steps of 8 envs: the bar stops at its total
 
 
+def test_a_run_too_short_to_learn_says_so_and_still_runs(capsys, tmp_path):
+    code, out, err = run(capsys, "train", "--traffic", "A", "--envs", "8", "--steps", "40", "--quiet",
+                         "--out", tmp_path / "r")  # the default learning start is 1,000 env steps
+    assert code == 0 and "note: learning starts after 1,000 env steps, more than --steps 40" in err
+    assert "rise time" in out and "None" not in out  # no rise within 5 vector steps: "n/a", not None
+    code, _, err = run(capsys, "train", "--method", "rule-based", "--traffic", "A", "--envs", "8", "--steps", "40",
+                       "--quiet", "--out", tmp_path / "rb")
+    assert code == 0 and "note:" not in err  # nothing to learn, nothing to say
+
+
 def test_deployment_figure_keeps_rates_within_100_percent_with_intervals():
     from highway_srl.experiments.demo import deployment_figure, deployment_table
 
