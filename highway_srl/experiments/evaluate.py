@@ -23,10 +23,13 @@ from highway_srl.sim import World
 EVAL_SEED_BASE = 1_000_000_000  # evaluation episodes never reuse a training seed
 
 
-def run_episodes(world, method, learner, on_step=None) -> dict[str, torch.Tensor]:
+def run_episodes(world, method, learner, on_step=None, after_step=None) -> dict[str, torch.Tensor]:
     """Drive one episode in every env of `world` (no resets); per-env results (B,) on the CPU.
 
-    on_step(t), if given, is called before step t (0-based) with no tensor read (progress display)."""
+    on_step(t), if given, is called before step t (0-based) with no tensor read (progress display).
+    after_step(world, events, alive), if given, is called after each step with the step's events and the
+    envs whose episode was still running before it (analyses of the state as the step left it, e.g.
+    experiments.collisions)."""
     make_layer = getattr(method, "make_layer", None)  # a Method; duck-typed test policies give layer_options
     layer = make_layer(world.road) if make_layer else SafetyLayer(world.road, **method.layer_options)
     b, dev = world.num_envs, world.device
@@ -41,6 +44,8 @@ def run_episodes(world, method, learner, on_step=None) -> dict[str, torch.Tensor
             on_step(step_no)
         t = policy_step(method, learner, world, layer, view, no_explore, None, stats, alive=alive)
         view = t.view
+        if after_step is not None:
+            after_step(world, t.events, alive)
         if adv is not None:  # each episode's counters as they stood when it ended
             for k, v in counts().items():
                 adv[k] = torch.where(alive, v, adv[k])
@@ -73,10 +78,12 @@ def summarise(results: dict[str, torch.Tensor], scenario: str) -> dict:
 
 def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, episodes: int = 100,
                  adversarial: bool | None = None, device: str = "cpu", backend: str = "ours", out: str | Path | None = None,
-                 seed: int = 0, progress=None, profile: str | None = None, adversary: str | None = None) -> dict:
+                 seed: int = 0, progress=None, profile: str | None = None, adversary: str | None = None,
+                 after_step=None) -> dict:
     """progress(done, total), if given, is called as the work advances (vector steps on our simulator,
     episodes on the others). profile, adversary: None = the run's own (config.json; runs written before
-    these settings existed were trained under "safe" and "mild")."""
+    these settings existed were trained under "safe" and "mild"). after_step(traffic): a level's
+    run_episodes hook (our simulator only), e.g. a collision census."""
     policy = load_policy(run, scenario, device, profile)
     cfg, method, learner = policy.config, policy.method, policy.learner
     scenario = cfg.scenario
@@ -88,6 +95,8 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
             raise ValueError(f"unknown traffic level {t!r}; choose from {', '.join(TRAFFIC_LEVELS)}")
     if episodes < 1:
         raise ValueError(f"episodes must be positive, got {episodes}")
+    if after_step is not None and backend != "ours":
+        raise ValueError("after_step reads our simulator's state: it needs backend 'ours'")
     seeds = len(cfg.seeds)
     report = {"run": str(run), "method": cfg.method, "scenario": scenario, "adversarial": adversarial,
               "backend": backend, "episodes_per_level": episodes, "trained_seeds": list(cfg.seeds),
@@ -99,7 +108,7 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
             world = World(scenario, traffic, adversarial, episodes * seeds, device, env_seeds, adversary=adversary)
             n = world.max_steps
             tick = None if progress is None else lambda t, i=i, n=n: progress(i * n + t, len(traffics) * n)
-            results = run_episodes(world, method, learner, tick)
+            results = run_episodes(world, method, learner, tick, after_step and after_step(traffic))
             if progress is not None:
                 progress((i + 1) * n, len(traffics) * n)
         else:

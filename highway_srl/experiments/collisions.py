@@ -1,0 +1,94 @@
+"""What each of the ego's collisions was, read from the world's state as the colliding step left it.
+
+Why: a collision-free rate says how often, not what happened. At the gridlocked levels a share of the
+episodes ends in a collision; whether the ego drove into a car ahead, was hit from behind, touched a car
+beside it, or left the road (a lane end, a barrier), and who was changing lanes, says where the cause lies:
+the policy, the rule layer, or the traffic. Used through run_episodes' / evaluate_run's after_step hook
+(scripts/collision_census.py), so the episodes are exactly the deployment's.
+
+Classification (documented in docs/paper-notes.md, "Collision census"): the SV that overlaps the ego, the
+nearest if several; in the ego's frame, "side" if the SV's centre is offset sideways by more than half a
+car width (they met side-on or at an angle), else "front" (the ego ran into it) or "rear" (it ran into the
+ego) by the sign of the longitudinal offset; "road" if no SV overlaps (a lane end, a barrier across a
+boundary, the road's edge). A vehicle is changing lanes if its target lane is not its lane or its centre
+is more than 0.5 m off its lane's centre; an SV's forced (group-3) cut-in is named as such.
+"""
+
+from __future__ import annotations
+
+import collections
+
+import torch
+
+from highway_srl.constants import VEHICLE_WIDTH_M
+from highway_srl.sim.collision import boxes_overlap
+
+OFF_CENTRE_M = 0.5  # a centre this far off its lane's centre is taken as changing lanes
+
+
+def classify(world, envs: torch.Tensor) -> list[dict]:
+    """One record per env index in envs (M,): kind (front, rear, side, road), ego_changing, sv ('changing',
+    'forced cut-in' or 'keeping lane'; None for road), the ego's and the SV's speeds (m/s)."""
+    s, w = world.state, world.road.lane_width_m
+    b = envs.to(s.x.device)
+    x0, y0, h0 = s.x[b, :1], s.y[b, :1], s.heading[b, :1]
+    hit = boxes_overlap(x0, y0, h0, s.x[b, 1:], s.y[b, 1:], s.heading[b, 1:])  # (M, N - 1)
+    dist = torch.where(hit, (s.x[b, 1:] - x0).abs() + (s.y[b, 1:] - y0).abs(), torch.inf)
+    j = dist.argmin(1) + 1  # the nearest overlapping SV (column 0 is the ego)
+    c, sn = torch.cos(h0[:, 0]), torch.sin(h0[:, 0])
+    dx, dy = s.x[b, j] - x0[:, 0], s.y[b, j] - y0[:, 0]
+    lon, lat = dx * c + dy * sn, -dx * sn + dy * c
+
+    def changing(i):
+        off = (s.y[b, i] - s.lane[b, i].float() * w).abs() > OFF_CENTRE_M
+        return (s.target_lane[b, i] != s.lane[b, i]) | off
+
+    ego_changing, sv_changing = changing(torch.zeros_like(j)), changing(j)
+    records = []
+    for m in range(b.numel()):
+        rec = {"ego_changing": bool(ego_changing[m]), "ego_speed": float(s.v[b[m], 0])}
+        if not bool(hit[m].any()):
+            rec.update(kind="road", sv=None, sv_speed=None)
+        else:
+            kind = "side" if abs(float(lat[m])) > 0.5 * VEHICLE_WIDTH_M else ("front" if float(lon[m]) > 0 else "rear")
+            sv = "forced cut-in" if bool(s.forced[b[m], j[m]]) else ("changing" if bool(sv_changing[m]) else "keeping lane")
+            rec.update(kind=kind, sv=sv, sv_speed=float(s.v[b[m], j[m]]))
+        records.append(rec)
+    return records
+
+
+class Census:
+    """Collects classify() records of the ego's collisions, per traffic level, through evaluate_run's
+    after_step hook: `evaluate_run(run, traffics=..., after_step=census.level)`."""
+
+    def __init__(self) -> None:
+        self.records: dict[str, list[dict]] = collections.defaultdict(list)
+
+    def level(self, traffic: str):
+        self.records.setdefault(traffic, [])  # a level without collisions is reported too
+
+        def after_step(world, events, alive) -> None:
+            new = events.collision & alive  # this step's collisions of episodes still running
+            if bool(new.any()):
+                self.records[traffic].extend(classify(world, new.nonzero().squeeze(1)))
+        return after_step
+
+    def summary(self) -> dict:
+        """Per level: collisions, counts by kind, by kind and who was changing lanes, and mean speeds."""
+        out = {}
+        for traffic, recs in self.records.items():
+            by_kind = collections.Counter(r["kind"] for r in recs)
+            by_detail = collections.Counter(
+                f"{r['kind']}; ego {'changing' if r['ego_changing'] else 'keeping lane'}"
+                + (f"; SV {r['sv']}" if r["sv"] else "") for r in recs)
+            out[traffic] = {
+                "collisions": len(recs), "by_kind": dict(by_kind.most_common()),
+                "by_detail": dict(by_detail.most_common()),
+                "mean_ego_speed": round(sum(r["ego_speed"] for r in recs) / len(recs), 2) if recs else None,
+                "mean_sv_speed": _mean([r["sv_speed"] for r in recs if r["sv_speed"] is not None]),
+            }
+        return out
+
+
+def _mean(values: list[float]) -> float | None:
+    return round(sum(values) / len(values), 2) if values else None

@@ -1,0 +1,46 @@
+"""What a trained run's deployment collisions were: the ego into the car ahead, hit from behind, a side
+contact or the road, and who was changing lanes (highway_srl.experiments.collisions).
+
+    python scripts/collision_census.py RUN [--traffic E,F] [--episodes 100] [--profile paper|safe]
+
+The episodes are evaluate's, seed for seed (the same env seeds and policy), so the collision counts agree
+with `highway-srl evaluate RUN --traffic ... --episodes ...`: each level also prints its C_r. One JSON
+object on stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from highway_srl.experiments.collisions import Census  # noqa: E402
+from highway_srl.experiments.evaluate import evaluate_run  # noqa: E402
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("run", help="a trained run folder")
+    p.add_argument("--traffic", default="E,F", help="comma-separated levels (default E,F)")
+    p.add_argument("--episodes", type=int, default=100, help="per seed and level (default 100, as evaluate)")
+    p.add_argument("--profile", default=None, help="control profile to deploy under (default: the run's)")
+    args = p.parse_args(argv)
+    census = Census()
+    try:
+        report = evaluate_run(args.run, traffics=[t.strip() for t in args.traffic.split(",") if t.strip()],
+                              episodes=args.episodes, profile=args.profile, after_step=census.level)
+    except (ValueError, OSError) as err:
+        p.error(str(err))
+    out = {"run": args.run, "method": report["method"], "scenario": report["scenario"],
+           "profile": report["profile"], "episodes_per_level": args.episodes, "levels": {}}
+    for traffic, summary in census.summary().items():
+        out["levels"][traffic] = {"C_r": report["levels"][traffic]["C_r"]["value"], **summary}
+    print(json.dumps(out, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

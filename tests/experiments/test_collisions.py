@@ -1,0 +1,88 @@
+"""The collision census (experiments/collisions.py): each collision's kind from constructed geometry, and the
+census of real deployment episodes agrees with their collision count."""
+
+from __future__ import annotations
+
+import torch
+
+from highway_srl.agents.registry import make_method
+from highway_srl.experiments.collisions import Census, classify
+from highway_srl.experiments.evaluate import EVAL_SEED_BASE, run_episodes
+from highway_srl.sim import World
+
+
+def _placed_world() -> World:
+    """Four envs, every SV parked far ahead except SV 1, placed against the ego in each env's own way."""
+    w = World("two-lane", "C", num_envs=4, seed=0)
+    s = w.state
+    n = s.x.shape[1]
+    s.x[:, 0], s.y[:, 0], s.heading[:, 0], s.v[:, 0] = 100.0, 0.0, 0.0, 3.0
+    s.lane[:, 0] = s.target_lane[:, 0] = 0
+    s.x[:, 1:] = 400.0 + 20.0 * torch.arange(1, n, dtype=torch.float32)
+    s.y[:, 1:], s.heading[:, 1:], s.v[:, 1:] = 0.0, 0.0, 1.0
+    s.lane[:, 1:] = s.target_lane[:, 1:] = 0
+    s.forced[:] = False
+    s.x[0, 1] = 104.5  # env 0: bumpers overlap, SV ahead: the ego ran into it
+    s.x[1, 1] = 95.5  # env 1: SV behind: it ran into the ego
+    s.x[2, 1], s.y[2, 1], s.lane[2, 1], s.target_lane[2, 1] = 101.0, 1.6, 0, 0  # env 2: beside, 1.6 m off
+    s.forced[2, 1] = True  # ... in a forced cut-in
+    s.target_lane[3, 0] = 1  # env 3: no SV touches the ego (a road collision), which is changing lanes
+    s.y[3, 0] = 0.8
+    return w
+
+
+def test_kinds_and_who_changed_lanes_from_the_geometry():
+    records = classify(_placed_world(), torch.arange(4))
+    assert [r["kind"] for r in records] == ["front", "rear", "side", "road"]
+    assert [r["sv"] for r in records] == ["keeping lane", "keeping lane", "forced cut-in", None]
+    assert [r["ego_changing"] for r in records] == [False, False, False, True]
+    assert records[0]["ego_speed"] == 3.0 and records[0]["sv_speed"] == 1.0 and records[3]["sv_speed"] is None
+
+
+def test_the_nearest_of_several_overlapping_svs_is_the_one_reported():
+    w = _placed_world()
+    w.state.x[0, 2], w.state.y[0, 2] = 95.2, 0.0  # env 0 also touched from behind, 0.2 m deep (ahead: 0.5 m)
+    assert classify(w, torch.tensor([0]))[0]["kind"] == "front"
+
+
+def test_census_of_deployment_episodes_counts_every_collision_once():
+    # the rule-based driver against the paper's adversary: its collisions are forced cut-ins (issue 12)
+    census = Census()
+    world = World("two-lane", "C", True, 48, "cpu", EVAL_SEED_BASE, adversary="paper")
+    results = run_episodes(world, make_method("rule-based", "two-lane", 1), None, after_step=census.level("C"))
+    summary = census.summary()["C"]
+    assert summary["collisions"] == int(results["collided"].sum()) > 0
+    assert all(r["sv"] == "forced cut-in" for r in census.records["C"])
+    assert set(summary["by_kind"]) <= {"front", "rear", "side", "road"}
+    quiet = Census()
+    run_episodes(World("two-lane", "A", num_envs=4, seed=EVAL_SEED_BASE), make_method("rule-based", "two-lane", 1),
+                 None, after_step=quiet.level("A"))
+    assert quiet.summary() == {"A": {"collisions": 0, "by_kind": {}, "by_detail": {}, "mean_ego_speed": None,
+                                     "mean_sv_speed": None}}
+
+
+def test_the_census_script_reports_a_trained_runs_levels_and_refuses_bad_input_in_one_line(tmp_path):
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from highway_srl.cli import main
+
+    root = Path(__file__).resolve().parents[2]
+    run = tmp_path / "run"
+    assert main(["train", "--traffic", "A", "--envs", "4", "--steps", "64", "--learning-starts", "32", "--quiet",
+                 "--out", str(run)]) == 0
+    env = {**os.environ, "PYTHONPATH": str(root), "OMP_NUM_THREADS": "1"}
+    script = [sys.executable, str(root / "scripts" / "collision_census.py")]
+    done = subprocess.run([*script, str(run), "--traffic", "A,F", "--episodes", "3"], env=env, capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    assert set(out["levels"]) == {"A", "F"} and out["profile"] == "paper"
+    for level in out["levels"].values():  # the census and evaluate's C_r count the same episodes
+        assert level["collisions"] == round((1 - level["C_r"]) * 3) == sum(level["by_kind"].values())
+    done = subprocess.run([*script, str(tmp_path / "nothing")], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert done.stderr.strip().splitlines()[-1].startswith("collision_census.py: error:")
