@@ -182,6 +182,9 @@ def format_report(report: dict) -> str:
             f"  speed {r['avg_speed']['value']:.2f} m/s  R_r {r['R_r']['value']:.1f} ± {r['R_r']['value'] - r['R_r']['low']:.1f}"
         if "R_s" in r:
             s += f"  R_s {r['R_s']['value']:.1%}"
+        kinds = (r.get("collisions") or {}).get("by_kind")
+        if kinds:  # what the collisions were (experiments/collisions.py)
+            s += "  collisions: " + ", ".join(f"{n} {kind}" for kind, n in kinds.items())
         lines.append(s)
     return "\n".join(lines)
 

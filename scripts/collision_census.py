@@ -3,9 +3,9 @@ contact or the road, and who was changing lanes (highway_srl.experiments.collisi
 
     python scripts/collision_census.py RUN [--traffic E,F] [--episodes 100] [--profile paper|safe]
 
-The episodes are evaluate's, seed for seed (the same env seeds and policy), so the collision counts agree
-with `highway-srl evaluate RUN --traffic ... --episodes ...`: each level also prints its C_r. One JSON
-object on stdout.
+The census is evaluate's own (every evaluation on our simulator writes it into eval.json's levels); this
+runs the evaluation without writing a file and prints each level's C_r beside what its collisions were.
+One JSON object on stdout.
 """
 
 from __future__ import annotations
@@ -17,7 +17,6 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from highway_srl.experiments.collisions import Census  # noqa: E402
 from highway_srl.experiments.evaluate import evaluate_run  # noqa: E402
 
 
@@ -28,16 +27,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--episodes", type=int, default=100, help="per seed and level (default 100, as evaluate)")
     p.add_argument("--profile", default=None, help="control profile to deploy under (default: the run's)")
     args = p.parse_args(argv)
-    census = Census()
     try:
         report = evaluate_run(args.run, traffics=[t.strip() for t in args.traffic.split(",") if t.strip()],
-                              episodes=args.episodes, profile=args.profile, after_step=census.level)
+                              episodes=args.episodes, profile=args.profile)
     except (ValueError, OSError) as err:
         p.error(str(err))
     out = {"run": args.run, "method": report["method"], "scenario": report["scenario"],
            "profile": report["profile"], "episodes_per_level": args.episodes, "levels": {}}
-    for traffic, summary in census.summary().items():
-        out["levels"][traffic] = {"C_r": report["levels"][traffic]["C_r"]["value"], **summary}
+    for traffic, level in report["levels"].items():
+        out["levels"][traffic] = {"C_r": level["C_r"]["value"], **level["collisions"]}
     print(json.dumps(out, indent=1))
     return 0
 

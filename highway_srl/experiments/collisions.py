@@ -3,8 +3,9 @@
 Why: a collision-free rate says how often, not what happened. At the gridlocked levels a share of the
 episodes ends in a collision; whether the ego drove into a car ahead, was hit from behind, touched a car
 beside it, or left the road (a lane end, a barrier), and who was changing lanes, says where the cause lies:
-the policy, the rule layer, or the traffic. Used through run_episodes' / evaluate_run's after_step hook
-(scripts/collision_census.py), so the episodes are exactly the deployment's.
+the policy, the rule layer, or the traffic. Collected through run_episodes' after_step hook in every
+evaluation on our simulator (eval.json's levels[...]["collisions"], the study's collisions table,
+scripts/collision_census.py), so the episodes are exactly the deployment's.
 
 Classification (documented in docs/paper-notes.md, "Collision census"): the SV that overlaps the ego, the
 nearest if several; in the ego's frame, "side" if the SV's centre is offset sideways by more than half a
@@ -58,8 +59,9 @@ def classify(world, envs: torch.Tensor) -> list[dict]:
 
 
 class Census:
-    """Collects classify() records of the ego's collisions, per traffic level, through evaluate_run's
-    after_step hook: `evaluate_run(run, traffics=..., after_step=census.level)`."""
+    """Collects classify() records of the ego's collisions, per traffic level, through run_episodes'
+    after_step hook: `run_episodes(world, method, learner, after_step=census.level("C"))` (evaluate_run does
+    this for every level on our simulator and writes the summary into eval.json's levels)."""
 
     def __init__(self) -> None:
         self.records: dict[str, list[dict]] = collections.defaultdict(list)
@@ -74,20 +76,24 @@ class Census:
         return after_step
 
     def summary(self) -> dict:
-        """Per level: collisions, counts by kind, by kind and who was changing lanes, and mean speeds."""
-        out = {}
-        for traffic, recs in self.records.items():
-            by_kind = collections.Counter(r["kind"] for r in recs)
-            by_detail = collections.Counter(
-                f"{r['kind']}; ego {'changing' if r['ego_changing'] else 'keeping lane'}"
-                + (f"; SV {r['sv']}" if r["sv"] else "") for r in recs)
-            out[traffic] = {
-                "collisions": len(recs), "by_kind": dict(by_kind.most_common()),
-                "by_detail": dict(by_detail.most_common()),
-                "mean_ego_speed": round(sum(r["ego_speed"] for r in recs) / len(recs), 2) if recs else None,
-                "mean_sv_speed": _mean([r["sv_speed"] for r in recs if r["sv_speed"] is not None]),
-            }
-        return out
+        """summarise() of each level's records."""
+        return {traffic: summarise(recs) for traffic, recs in self.records.items()}
+
+
+def summarise(records: list[dict]) -> dict:
+    """Collisions, counts by kind, by kind and who was changing lanes, the counts of the study's table
+    (while the ego changed lanes, SV changing, SV in a forced cut-in) and mean speeds at contact."""
+    by_kind = collections.Counter(r["kind"] for r in records)
+    by_detail = collections.Counter(
+        f"{r['kind']}; ego {'changing' if r['ego_changing'] else 'keeping lane'}" + (f"; SV {r['sv']}" if r["sv"] else "")
+        for r in records)
+    return {"collisions": len(records), "by_kind": dict(by_kind.most_common()),
+            "by_detail": dict(by_detail.most_common()),
+            "while_ego_changing": sum(r["ego_changing"] for r in records),
+            "sv_changing": sum(r["sv"] == "changing" for r in records),
+            "sv_forced_cut_in": sum(r["sv"] == "forced cut-in" for r in records),
+            "mean_ego_speed": _mean([r["ego_speed"] for r in records]),
+            "mean_sv_speed": _mean([r["sv_speed"] for r in records if r["sv_speed"] is not None])}
 
 
 def _mean(values: list[float]) -> float | None:

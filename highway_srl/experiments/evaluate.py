@@ -13,6 +13,7 @@ import torch
 
 from highway_srl.agents.rollout import policy_step
 from highway_srl.constants import TRAFFIC_LEVELS
+from highway_srl.experiments.collisions import Census
 from highway_srl.experiments.policy import load_policy
 from highway_srl.experiments.runs import provenance, write_json
 from highway_srl.rules import SafetyLayer, collision_free_rate, mean_interval, success_rate
@@ -78,12 +79,11 @@ def summarise(results: dict[str, torch.Tensor], scenario: str) -> dict:
 
 def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, episodes: int = 100,
                  adversarial: bool | None = None, device: str = "cpu", backend: str = "ours", out: str | Path | None = None,
-                 seed: int = 0, progress=None, profile: str | None = None, adversary: str | None = None,
-                 after_step=None) -> dict:
+                 seed: int = 0, progress=None, profile: str | None = None, adversary: str | None = None) -> dict:
     """progress(done, total), if given, is called as the work advances (vector steps on our simulator,
     episodes on the others). profile, adversary: None = the run's own (config.json; runs written before
-    these settings existed were trained under "safe" and "mild"). after_step(traffic): a level's
-    run_episodes hook (our simulator only), e.g. a collision census."""
+    these settings existed were trained under "safe" and "mild"). On our simulator each level also gets
+    "collisions": what the ego's collisions were (experiments/collisions.py)."""
     policy = load_policy(run, scenario, device, profile)
     cfg, method, learner = policy.config, policy.method, policy.learner
     scenario = cfg.scenario
@@ -95,8 +95,6 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
             raise ValueError(f"unknown traffic level {t!r}; choose from {', '.join(TRAFFIC_LEVELS)}")
     if episodes < 1:
         raise ValueError(f"episodes must be positive, got {episodes}")
-    if after_step is not None and backend != "ours":
-        raise ValueError("after_step reads our simulator's state: it needs backend 'ours'")
     seeds = len(cfg.seeds)
     report = {"run": str(run), "method": cfg.method, "scenario": scenario, "adversarial": adversarial,
               "backend": backend, "episodes_per_level": episodes, "trained_seeds": list(cfg.seeds),
@@ -108,13 +106,16 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
             world = World(scenario, traffic, adversarial, episodes * seeds, device, env_seeds, adversary=adversary)
             n = world.max_steps
             tick = None if progress is None else lambda t, i=i, n=n: progress(i * n + t, len(traffics) * n)
-            results = run_episodes(world, method, learner, tick, after_step and after_step(traffic))
+            census = Census()
+            results = run_episodes(world, method, learner, tick, census.level(traffic))
             if progress is not None:
                 progress((i + 1) * n, len(traffics) * n)
         else:
             tick = None if progress is None else lambda e, i=i: progress(i * episodes + e, len(traffics) * episodes)
             results = _run_backend(backend, scenario, traffic, adversarial, env_seeds, method, learner, episodes, tick)
         level = summarise(results, scenario)
+        if backend == "ours":
+            level["collisions"] = census.summary()[traffic]
         level["per_seed"] = {
             str(s): summarise({k: v[i * episodes:(i + 1) * episodes] for k, v in results.items()}, scenario)
             for i, s in enumerate(cfg.seeds)

@@ -542,16 +542,53 @@ def training_curves(results: Results) -> tuple[Table, dict]:
     return table, series
 
 
-REPORT_TABLES = ("table5", "table6", "group1_deployment", "group2", "multilane", "group3")
+def collisions(results: Results) -> Table:
+    """What the deployment collisions were, per job and level that had any (evaluate's census)."""
+    order = {k: i for i, k in enumerate(SCENES)}, {k: i for i, k in enumerate(METHOD_LABELS)}
+    rows = []
+    for res in sorted(results, key=lambda r: (order[0].get(r.job.scene, 99), order[1].get(r.job.method, 99),
+                                              r.job.options)):
+        levels = (res.evaluation or {}).get("levels", {}) if res.done else {}
+        for level, lv in levels.items():
+            c = lv.get("collisions")
+            if not c or not c["collisions"]:  # none, or an evaluation written before the census
+                continue
+            kinds = c["by_kind"]
+            rows.append({"scene": SCENES[res.job.scene].label, "scene_key": res.job.scene, "method": res.job.label,
+                         "method_key": res.job.method, "level": level, "episodes": lv["episodes"],
+                         "collisions": c["collisions"], **{k: kinds.get(k, 0) for k in COLLISION_KINDS},
+                         **{k: c.get(k) for k in ("while_ego_changing", "sv_changing", "sv_forced_cut_in",
+                                                  "mean_ego_speed", "mean_sv_speed")}})
+    cols = [Column("scene", "scene"), Column("scene_key", "scene key"), Column("method", "method"),
+            Column("method_key", "method key"), Column("level", "level"), Column("episodes", "episodes", "int"),
+            Column("collisions", "collisions", "int"),
+            Column("front", "ego into the car ahead", "int"), Column("rear", "hit from behind", "int"),
+            Column("side", "side contact", "int"), Column("road", "road (lane end, barrier, edge)", "int"),
+            Column("while_ego_changing", "while the ego changed lanes", "int"),
+            Column("sv_changing", "SV changing lanes", "int"),
+            Column("sv_forced_cut_in", "SV in a forced cut-in", "int"),
+            Column("mean_ego_speed", "ego speed at contact (m/s)", "f2"),
+            Column("mean_sv_speed", "SV speed at contact (m/s)", "f2")]
+    shown = [c for c in cols if c.key not in ("scene_key", "method_key")]
+    return Table("collisions", "What the deployment collisions were", cols, rows, display=Table("", "", shown, rows),
+                 notes=["Every deployment collision of the ego, read from the state the colliding step left "
+                        "(experiments/collisions.py; docs/paper-notes.md, 'Collision census'). Jobs and levels "
+                        "without a collision, and evaluations written before the census, are not listed."])
+
+
+COLLISION_KINDS = ("front", "rear", "side", "road")
+
+
+REPORT_TABLES = ("table5", "table6", "group1_deployment", "group2", "multilane", "group3", "collisions")
 
 
 def all_tables(results: Results) -> dict[str, Table]:
     """The reproduction's tables, then each other profile's as NAME_PROFILE, titled "Beyond the paper"."""
     out = {t.name: t for t in (group1_deployment(results), group2(results), multilane(results), group3(results),
-                               table5(results), table6(results))}
+                               table5(results), table6(results), collisions(results))}
     for other in results.beyond():
         for t in (group1_deployment(other), group2(other), multilane(other), group3(other), table5(other),
-                  table6(other), training(other)):
+                  table6(other), training(other), collisions(other)):
             t.name = f"{t.name}_{other.profile}"
             t.title = f"Beyond the paper ({other.profile} profile): {t.title}"
             out[t.name] = t

@@ -53,11 +53,13 @@ def test_census_of_deployment_episodes_counts_every_collision_once():
     summary = census.summary()["C"]
     assert summary["collisions"] == int(results["collided"].sum()) > 0
     assert all(r["sv"] == "forced cut-in" for r in census.records["C"])
+    assert summary["sv_forced_cut_in"] == summary["collisions"]
     assert set(summary["by_kind"]) <= {"front", "rear", "side", "road"}
     quiet = Census()
     run_episodes(World("two-lane", "A", num_envs=4, seed=EVAL_SEED_BASE), make_method("rule-based", "two-lane", 1),
                  None, after_step=quiet.level("A"))
-    assert quiet.summary() == {"A": {"collisions": 0, "by_kind": {}, "by_detail": {}, "mean_ego_speed": None,
+    assert quiet.summary() == {"A": {"collisions": 0, "by_kind": {}, "by_detail": {}, "while_ego_changing": 0,
+                                     "sv_changing": 0, "sv_forced_cut_in": 0, "mean_ego_speed": None,
                                      "mean_sv_speed": None}}
 
 
@@ -83,6 +85,8 @@ def test_the_census_script_reports_a_trained_runs_levels_and_refuses_bad_input_i
     assert set(out["levels"]) == {"A", "F"} and out["profile"] == "paper"
     for level in out["levels"].values():  # the census and evaluate's C_r count the same episodes
         assert level["collisions"] == round((1 - level["C_r"]) * 3) == sum(level["by_kind"].values())
+    saved = json.loads((run / "eval.json").read_text()) if (run / "eval.json").exists() else None
+    assert saved is None or "collisions" in saved["levels"]["C"]  # train's own evaluation carries it too
     done = subprocess.run([*script, str(tmp_path / "nothing")], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert done.stderr.strip().splitlines()[-1].startswith("collision_census.py: error:")

@@ -14,6 +14,7 @@ from pathlib import Path
 import torch
 
 from highway_srl.constants import TRAFFIC_LEVELS
+from highway_srl.experiments.collisions import summarise as census_summary
 from highway_srl.experiments.evaluate import summarise
 from highway_srl.experiments.runs import append_jsonl, provenance, write_json
 from highway_srl.study.jobs import OURS, SCENES, Job
@@ -64,6 +65,8 @@ def write_fake_job(root: Path, job: Job, numbers: dict | None = None, episodes_p
                         "deploy_reward": torch.full((k,), float(n["R_r"])) + 0.1 * torch.arange(k)})
         results = {key: torch.cat([p[key] for p in per]) for key in per[0]}
         lv = summarise(results, scenario)
+        crash = {"kind": "front", "ego_changing": False, "sv": "keeping lane", "ego_speed": 1.0, "sv_speed": 0.0}
+        lv["collisions"] = census_summary([crash] * int(results["collided"].sum()))  # as evaluate's census
         lv["per_seed"] = {str(s): summarise(p, scenario) for s, p in zip(job.seeds, per)} if len(per) > 1 else None
         report["levels"][level] = lv
     write_json(folder / "eval.json", report)

@@ -28,7 +28,7 @@ def study(tmp_path_factory):
 
 
 def test_every_artefact_is_written_as_csv_and_markdown_and_figures_as_png_and_svg(study):
-    for name in ("group1_deployment", "group2", "multilane", "group3", "table5", "table6"):
+    for name in ("group1_deployment", "group2", "multilane", "group3", "table5", "table6", "collisions"):
         assert (study / "tables" / f"{name}.csv").stat().st_size > 0
         assert (study / "tables" / f"{name}.md").read_text().startswith("## ")
     figures = ["deployment_pareto", "training_pareto"] + [f"training_curves_{s}" for s in SCENES]
@@ -81,6 +81,18 @@ def test_group_tables_multilane_and_ablation_rows(study):
     t6 = _rows(study / "tables" / "table6.csv")
     assert [r["variant_key"] for r in t6] == ["full", *ABLATIONS]
     assert float(t6[0]["C_r"]) == 1.0 and float(t6[1]["C_r_paper"]) == 0.377
+
+
+def test_collisions_table_lists_each_job_and_level_that_had_any_by_kind(study):
+    rows = _rows(study / "tables" / "collisions.csv")
+    # the fakes: MoE-RM-SRL (full) never collides, every other job does at every level, all "front" contacts
+    assert rows and not any(r["method_key"] == "moe-rm-srl" and r["method"] == "MoE-RM-SRL" for r in rows)
+    assert {(r["scene_key"], r["method_key"]) for r in rows if r["method_key"] == "rl"} == {
+        (s, "rl") for s in TABLE5_SCENES}
+    for r in rows:
+        assert int(r["collisions"]) == int(r["front"]) > 0 and int(r["rear"]) == int(r["side"]) == int(r["road"]) == 0
+        assert int(r["collisions"]) == round(0.3 * int(r["episodes"]))  # POOR's C_r 0.7
+    assert "## What the deployment collisions were" in (study / "report.md").read_text()
 
 
 def test_training_figure_data_has_every_non_ablation_run_and_curves_have_bins(study):
