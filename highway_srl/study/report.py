@@ -20,7 +20,7 @@ from highway_srl.study.paper_numbers import TABLE5
 from highway_srl.study.side_by_side import side_by_side
 from highway_srl.experiments.runs import provenance
 from highway_srl.study.jobs import (ABLATION_SCENE, ABLATIONS, BUDGETS, GROUP1_METHODS, METHOD_LABELS, OURS,
-                                           SCENES, TABLE5_METHODS, TABLE5_SCENES, TRAIN_TRAFFIC)
+                                           SCENES, TABLE5_METHODS, TABLE5_SCENES, TRAIN_TRAFFIC, Job)
 
 COLLISION_FREE = 0.9995  # T_c that prints as 1.000, the paper's value for MoE-RM-SRL in every scene
 HIGH_SUCCESS = 0.5  # "high" success on exiting: most episodes reach the off-ramp
@@ -282,11 +282,18 @@ def build_blocks(root: Path, results: T.Results, tables: dict[str, T.Table], fig
     blocks.append(("h2", "Jobs not done"))
     if not_done:
         blocks.append(("ul", [f"`{job_id}`: {j.get('status')}{': ' + j['message'] if j.get('message') else ''}"
-                              for job_id, j in not_done]))
+                              + _training_logged(results.root, j) for job_id, j in not_done]))
         blocks.append(("p", "Run the same command again to retry them; finished jobs are kept."))
     else:
         blocks.append(("p", "None: every job finished."))
     return blocks
+
+
+def _training_logged(root: Path, entry: dict) -> str:
+    """How far a job not done has trained, from its scalars.csv (a study running or stopped), else ''."""
+    job = Job.from_dict(entry["job"])
+    frac = T.job_fraction(root, job)
+    return f" ({frac * job.steps:,.0f} of {job.steps:,} env steps logged)" if 0 < frac < 1 else ""
 
 
 def _mark(ok: bool | None) -> str:

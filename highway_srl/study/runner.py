@@ -28,6 +28,7 @@ from typing import Callable
 
 from highway_srl.experiments.runs import open_state, provenance, read_json, write_json
 from highway_srl.study.jobs import Budget, Job, get_budget, job_availability, study_jobs
+from highway_srl.study.tables import job_fraction
 
 EXECUTORS = ("local", "ray")  # what runs the jobs (the simulators are highway_srl.backends)
 STUDY_FILE = "study.json"
@@ -44,21 +45,6 @@ def now() -> str:
 def job_done(root: Path, job: Job) -> bool:
     folder = root / job.folder
     return (folder / "metrics.json").exists() and (folder / EVAL_FILE).exists()
-
-
-def job_fraction(root: Path, job: Job) -> float:
-    """How far a job's training is, 0..1, read from the last row of its scalars.csv (written every few
-    thousand env steps by the worker); 0 when nothing is logged yet. Cheap: reads the file's tail only."""
-    path = root / job.folder / "scalars.csv"
-    try:
-        with open(path, "rb") as f:
-            f.seek(0, os.SEEK_END)
-            f.seek(max(0, f.tell() - 4096))
-            last = f.read().decode("utf-8", "replace").strip().splitlines()[-1]
-        step = float(last.split(",")[0])
-    except (OSError, IndexError, ValueError):
-        return 0.0
-    return min(1.0, max(0.0, step / max(1, job.steps)))
 
 
 class StudyProgress:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import os
 import statistics
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -104,6 +105,21 @@ class Results:
 
     def __iter__(self):
         return iter(self.by_key.values())
+
+
+def job_fraction(root: Path, job: Job) -> float:
+    """How far a job's training is, 0..1, read from the last row of its scalars.csv (written every few
+    thousand env steps by the worker); 0 when nothing is logged yet. Cheap: reads the file's tail only."""
+    path = root / job.folder / "scalars.csv"
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, os.SEEK_END)
+            f.seek(max(0, f.tell() - 4096))
+            last = f.read().decode("utf-8", "replace").strip().splitlines()[-1]
+        step = float(last.split(",")[0])
+    except (OSError, IndexError, ValueError):
+        return 0.0
+    return min(1.0, max(0.0, step / max(1, job.steps)))
 
 
 def load_results(root: str | Path) -> Results:

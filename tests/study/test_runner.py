@@ -152,11 +152,14 @@ def test_report_only_writes_the_report_of_the_jobs_done_so_far_and_runs_nothing(
     (root / "study.json").write_text(json.dumps(state))
     folder = root / study_jobs("smoke", methods=(OURS,))[0].folder
     (folder / "eval.json").unlink()
+    (folder / "scalars.csv").write_text("env_steps,steps_per_s\n672,100.0\n")  # half of its 1,344 steps logged
     before, n = (root / "study.json").read_bytes(), len(fakes.calls(root))
 
     assert main(["reproduce", "--out", str(root), "--report-only"]) == 0
     assert capsys.readouterr().out.strip() == f"report: {root / 'report.md'}"
-    assert f"jobs: {len(state['jobs']) - 1} done, 1 pending" in (root / "report.md").read_text()
+    report = (root / "report.md").read_text()
+    assert f"jobs: {len(state['jobs']) - 1} done, 1 pending" in report
+    assert f"`{first}`: pending (672 of 1,344 env steps logged)" in report
     assert (root / "tables").is_dir() and (root / "report.html").exists()
     assert (root / "study.json").read_bytes() == before and len(fakes.calls(root)) == n  # read only, ran nothing
 
@@ -222,7 +225,7 @@ def test_workers_take_omp_num_threads_when_it_is_set(monkeypatch):
 
 def test_job_fraction_reads_the_last_logged_step_of_a_running_job(tmp_path):
     from highway_srl.study.jobs import Job
-    from highway_srl.study.runner import job_fraction
+    from highway_srl.study.tables import job_fraction
 
     job = Job("rl", "two-lane", steps=8000)
     assert job_fraction(tmp_path, job) == 0.0  # nothing logged yet
