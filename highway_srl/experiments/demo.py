@@ -71,10 +71,14 @@ def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0) -> 
 
 def deployment_table(report: dict) -> list[str]:
     """report.md's Markdown table: every value with the 95 % interval that evaluation.json holds."""
-    lines = ["Each value with its 95 % interval in brackets (Wilson for the rate C_r).", "",
-             "| level | collision-free C_r | average speed (m/s) | R_r |", "|---|---|---|---|"]
+    lines = ["Each value with its 95 % interval in brackets (Wilson for the rate C_r); the collisions by what "
+             "they were (experiments/collisions.py: the ego into the car ahead, hit from behind, side, road).", "",
+             "| level | collision-free C_r | average speed (m/s) | R_r | collisions |", "|---|---|---|---|---|"]
     for level, r in report["levels"].items():
-        lines.append(f"| {level} | {_ci(r['C_r'], '.1%')} | {_ci(r['avg_speed'], '.2f')} | {_ci(r['R_r'], '.1f')} |")
+        kinds = (r.get("collisions") or {}).get("by_kind") or {}
+        what = ", ".join(f"{n} {kind}" for kind, n in kinds.items()) or "none"
+        lines.append(f"| {level} | {_ci(r['C_r'], '.1%')} | {_ci(r['avg_speed'], '.2f')} | {_ci(r['R_r'], '.1f')} "
+                     f"| {what} |")
     return lines
 
 

@@ -356,13 +356,15 @@ def test_deployment_figure_keeps_rates_within_100_percent_with_intervals():
 
     stat = lambda v, lo, hi: {"value": v, "low": lo, "high": hi}  # noqa: E731
     report = {"levels": {"A": {"C_r": stat(1.0, 0.93, 1.0), "avg_speed": stat(8.0, 7.5, 8.5), "R_r": stat(90, 80, 100)},
-                         "F": {"C_r": stat(0.5, 0.36, 0.64), "avg_speed": stat(6.0, 5.5, 6.5), "R_r": stat(40, 30, 50)}}}
+                         "F": {"C_r": stat(0.5, 0.36, 0.64), "avg_speed": stat(6.0, 5.5, 6.5), "R_r": stat(40, 30, 50),
+                               "collisions": {"collisions": 3, "by_kind": {"front": 2, "side": 1}}}}}
     plt, fig = deployment_figure(report)
     ax = fig.axes[0]
     assert ax.get_ylim()[1] <= 100.0 and len(ax.containers) == 2  # one errorbar per level
     plt.close(fig)
     table = deployment_table(report)
-    assert "| A | 100.0% [93.0%, 100.0%] | 8.00 [7.50, 8.50] | 90.0 [80.0, 100.0] |" in table
+    assert "| A | 100.0% [93.0%, 100.0%] | 8.00 [7.50, 8.50] | 90.0 [80.0, 100.0] | none |" in table
+    assert "| F | 50.0% [36.0%, 64.0%] | 6.00 [5.50, 6.50] | 40.0 [30.0, 50.0] | 2 front, 1 side |" in table
 
 
 def test_render_names_the_styles_and_the_reward_machine_state():
