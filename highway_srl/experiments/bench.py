@@ -19,7 +19,9 @@ def _sync(device: torch.device) -> None:
 
 def machine() -> dict:
     info = {"cpu": platform.processor() or platform.machine(), "threads": torch.get_num_threads(), "torch": torch.__version__,
-            "malloc": allocator.setting()}  # glibc's thresholds change the CPU figures by 1.2x (sim/allocator.py)
+            "malloc": allocator.setting(),  # glibc's thresholds change the CPU figures by 1.2x (sim/allocator.py)
+            # torch's vectorised CPU kernels (AVX2, AVX512, ...): they move the figures and the last bits of a run
+            "cpu_kernels": torch.backends.cpu.get_cpu_capability()}
     if torch.cuda.is_available():
         info["gpu"] = torch.cuda.get_device_name(0)
     return info

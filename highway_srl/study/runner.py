@@ -263,7 +263,7 @@ def machine(device: str = "cpu") -> dict:
 
     info = {"host": socket.gethostname(), "platform": platform.platform(), "cpu": _cpu_model(),
             "cores": os.cpu_count(), "python": platform.python_version(), "torch": torch.__version__,
-            "device": device}
+            "device": device, "cpu_kernels": torch.backends.cpu.get_cpu_capability()}  # AVX2 / AVX512: the last bits
     if device.startswith("cuda") and torch.cuda.is_available():
         info["gpu"] = torch.cuda.get_device_name(0)
     return info
