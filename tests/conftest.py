@@ -1,19 +1,9 @@
 """Fixtures shared by every test folder."""
 
 import os
-import platform
 
-# The pins (tests/pins) are bit-exact hashes, and torch's vectorised CPU kernels round differently on
-# different instruction sets (AVX2 and AVX-512 sum and evaluate exp/log in other orders): the same code gives
-# other last bits on an AVX-512 machine. The suite runs torch's AVX2 kernels on every x86 machine, the set the
-# pins were recorded with (tests/pins/pin_data.py does the same). torch reads the setting once, at its first
-# CPU kernel, so it is set here, before any test runs one; an explicit setting of the user's is kept.
-PINNED_CPU_CAPABILITY = "avx2"
-if platform.machine().lower() in ("x86_64", "amd64"):
-    os.environ.setdefault("ATEN_CPU_CAPABILITY", PINNED_CPU_CAPABILITY)
-
-import pytest  # noqa: E402
-import torch  # noqa: E402
+import pytest
+import torch
 
 
 def pytest_configure(config):
@@ -33,7 +23,6 @@ def one_thread():
     tests/cli/test_methods_cli.py): their tensors and networks are small, so a second thread only adds
     OpenMP waits, and on a machine whose cores are busy with other work a barrier waiting for a descheduled
     thread makes small ops 10-50x slower.
-    The pins also need it for their numbers (see tests/pins/conftest.py).
     """
     threads = torch.get_num_threads()
     torch.set_num_threads(1)

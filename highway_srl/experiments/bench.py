@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import platform
 import time
 
@@ -21,7 +22,9 @@ def machine() -> dict:
     info = {"cpu": platform.processor() or platform.machine(), "threads": torch.get_num_threads(), "torch": torch.__version__,
             "malloc": allocator.setting(),  # glibc's thresholds change the CPU figures by 1.2x (sim/allocator.py)
             # torch's vectorised CPU kernels (AVX2, AVX512, ...): they move the figures and the last bits of a run
-            "cpu_kernels": torch.backends.cpu.get_cpu_capability()}
+            "cpu_kernels": torch.backends.cpu.get_cpu_capability(),
+            # MKL's reproducible mode (README: comparing runs across machines); "" when not set
+            "mkl_cbwr": os.environ.get("MKL_CBWR", "")}
     if torch.cuda.is_available():
         info["gpu"] = torch.cuda.get_device_name(0)
     return info

@@ -263,7 +263,8 @@ def machine(device: str = "cpu") -> dict:
 
     info = {"host": socket.gethostname(), "platform": platform.platform(), "cpu": _cpu_model(),
             "cores": os.cpu_count(), "python": platform.python_version(), "torch": torch.__version__,
-            "device": device, "cpu_kernels": torch.backends.cpu.get_cpu_capability()}  # AVX2 / AVX512: the last bits
+            "device": device, "cpu_kernels": torch.backends.cpu.get_cpu_capability(),  # AVX2 / AVX512: the last bits
+            "mkl_cbwr": os.environ.get("MKL_CBWR", "")}  # MKL's reproducible mode, "" when not set (README)
     if device.startswith("cuda") and torch.cuda.is_available():
         info["gpu"] = torch.cuda.get_device_name(0)
     return info

@@ -2,7 +2,16 @@
 
 Written before the structure refactor (issue: one rollout, one registry, scenario specs) on the code it
 refactors, so that a refactor that changes any number is caught. A deliberate behaviour change updates
-the golden file with `python -m tests.pins.pin_data --write` and says why in its commit.
+the golden file with `python tests/pins/pin_data.py --write` and says why in its commit.
+
+The fingerprints are bit-exact, and the last bits of torch's CPU arithmetic depend on the machine: torch's
+own kernels round differently on AVX2 and AVX-512 (sums, exp/log), and the MKL it calls for matrix products
+and for exp, log, sqrt, asin, tanh and erf picks its code by CPU model (another answer on an Intel AVX-512
+host than on an AMD one, under either torch setting). So they are computed in a child process with the
+settings of PINNED_ENV: torch's AVX2 kernels and MKL's reproducible mode COMPATIBLE (its documented way
+to give the same results on every x86 CPU, Intel or not; slower, which is why only the pins run in it).
+`python tests/pins/pin_data.py trajectories|methods` prints one kind as JSON (what tests/pins/test_pins.py
+runs).
 """
 
 from __future__ import annotations
@@ -14,9 +23,12 @@ import platform
 import sys
 from pathlib import Path
 
-if __name__ == "__main__" and platform.machine().lower() in ("x86_64", "amd64"):
-    # the kernels the pins are recorded with (tests/conftest.py): set before torch runs a CPU kernel
-    os.environ.setdefault("ATEN_CPU_CAPABILITY", "avx2")
+# read by torch and MKL once, when they start: set for the child process before it imports torch
+PINNED_ENV = {"OMP_NUM_THREADS": "1"}
+if platform.machine().lower() in ("x86_64", "amd64"):
+    PINNED_ENV.update(ATEN_CPU_CAPABILITY="avx2", MKL_CBWR="COMPATIBLE")
+if __name__ == "__main__":
+    os.environ.update(PINNED_ENV)
 
 import torch  # noqa: E402
 
@@ -91,24 +103,36 @@ def method_fingerprint(method: str, options: dict, tmp: Path) -> dict:
             "eval": {k: level[k] for k in ("C_r", "avg_speed", "R_r")}}
 
 
-def compute(tmp: Path) -> dict:
-    out = {"trajectories": {}, "methods": {}}
-    for scenario in SCENARIOS:
-        for adversarial in (False, True):
-            out["trajectories"][f"{scenario}/{'adv' if adversarial else 'nom'}"] = trajectory_hash(scenario, adversarial)
-    for method, options in PIN_METHODS:
-        key = method + "".join(f"+{k}" for k in sorted(options))
-        out["methods"][key] = method_fingerprint(method, options, tmp)
-    return out
+def method_key(method: str, options: dict) -> str:
+    return method + "".join(f"+{k}" for k in sorted(options))
+
+
+def compute(kind: str, tmp: Path) -> dict:
+    """Every fingerprint of one kind ("trajectories" or "methods"), by key."""
+    if kind == "trajectories":
+        return {f"{scenario}/{'adv' if adversarial else 'nom'}": trajectory_hash(scenario, adversarial)
+                for scenario in SCENARIOS for adversarial in (False, True)}
+    return {method_key(method, options): method_fingerprint(method, options, tmp) for method, options in PIN_METHODS}
+
+
+def check_settings() -> None:
+    """Exit with one line if the settings of PINNED_ENV did not take (torch started before they were set)."""
+    capability = torch.backends.cpu.get_cpu_capability()
+    if "ATEN_CPU_CAPABILITY" in PINNED_ENV and capability != "AVX2":
+        sys.exit(f"the pins need torch's AVX2 CPU kernels, this process runs {capability}")
 
 
 if __name__ == "__main__":
     import tempfile
 
+    kinds = [a for a in sys.argv[1:] if a in ("trajectories", "methods")] or ["trajectories", "methods"]
+    check_settings()
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as d:
-        data = compute(Path(d))
+        data = {kind: compute(kind, Path(d)) for kind in kinds}
     text = json.dumps(data, indent=1, sort_keys=True)
     if "--write" in sys.argv:
+        if len(kinds) != 2:
+            sys.exit("--write records both kinds: drop trajectories/methods")
         GOLDEN.write_text(text + "\n")
     print(text)
