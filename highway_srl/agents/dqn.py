@@ -156,6 +156,12 @@ class DQNLearner:
         self.exp_avg_sq = torch.zeros_like(self.online.flat, requires_grad=False)
         self.adam_step = torch.zeros(num_members, device=self.device)
         self.target_update_count = torch.zeros(num_members, dtype=torch.long, device=self.device)  # n_i,j
+        # `update` on the CPU reads the members' indices on the host (free there) and steps their rows in
+        # place: no gathered copies of the moments and weights written back, and the target copied only
+        # when it syncs (an index_copy_ of one member's row costs 44 us, a fifth of an update's Adam;
+        # docs/benchmarks.md). Same operations on the same values, so bit for bit the gathered form, which
+        # stays for devices where a host read waits for the queue (tests/agents/test_dqn.py compares them).
+        self.rows_in_place = self.device.type == "cpu"
 
     @torch.no_grad()
     def q_values(self, obs: torch.Tensor) -> torch.Tensor:
@@ -184,8 +190,10 @@ class DQNLearner:
         action, reward = batch["action"].to(self.device), batch["reward"].to(self.device)
         done = batch["done"].to(self.device)
 
+        rows = idx.tolist() if self.rows_in_place else None
         with torch.no_grad():
-            old_target = self.target.gather(idx)  # (K, P)
+            # one member's target row is read as a view; several are gathered (K, P)
+            old_target = self.target.flat[rows[0]:rows[0] + 1] if rows and len(rows) == 1 else self.target.gather(idx)
             q_next = ensemble_forward(self.target.unflatten(old_target), next_obs)
             q_next = q_next.masked_fill(~self.action_mask[idx].unsqueeze(1), float("-inf")).amax(-1)
             y = reward + cfg.gamma * (~done).to(q_next.dtype) * q_next
@@ -204,14 +212,21 @@ class DQNLearner:
             (grad,) = torch.autograd.grad(per_member.sum(), theta)
 
         with torch.no_grad():
-            new_theta = self._adam_step(idx, theta.detach(), grad)
-            self.online.flat.index_copy_(0, idx, new_theta)
+            if rows is None:
+                new_theta = self._adam_step(idx, theta.detach(), grad)
+                self.online.flat.index_copy_(0, idx, new_theta)
+            else:
+                self._adam_rows(rows, idx, grad)
             # Algorithm 1: n_i,j counts the member's updates; when it exceeds n_t the target
             # takes the online weights and the counter restarts.
             count = self.target_update_count[idx] + 1
             sync = count > cfg.target_update_interval
             self.target_update_count.index_copy_(0, idx, torch.where(sync, torch.zeros_like(count), count))
-            self.target.flat.index_copy_(0, idx, torch.where(sync.unsqueeze(1), new_theta, old_target))
+            if rows is None:
+                self.target.flat.index_copy_(0, idx, torch.where(sync.unsqueeze(1), new_theta, old_target))
+            else:
+                for k in sync.nonzero().flatten().tolist():
+                    self.target.flat[rows[k]].copy_(self.online.flat[rows[k]])
         q_sa = q_sa.detach()
         return UpdateStats(per_member.detach(), q_sa.mean(1), (y - q_sa).abs().mean(1))
 
@@ -248,14 +263,11 @@ class DQNLearner:
         """
         cfg = self.config
         beta1, beta2 = cfg.adam_betas
-        if cfg.grad_clip_norm > 0:
-            norm = grad.square().sum(1, keepdim=True).sqrt_()
-            grad = grad * (cfg.grad_clip_norm / (norm + 1e-6)).clamp_(max=1.0)
+        grad = self._clipped(grad)
         old_step = self.adam_step[idx]
         step = old_step + 1
         self.adam_step.index_copy_(0, idx, step if mask is None else torch.where(mask, step, old_step))
-        step_size = (cfg.lr / (1 - beta1**step)).unsqueeze(1)
-        bias2_sqrt = (1 - beta2**step).sqrt_().unsqueeze(1)
+        step_size, bias2_sqrt = self._bias_corrections(step)
         m = self.exp_avg.index_select(0, idx).lerp_(grad, 1 - beta1)
         v = self.exp_avg_sq.index_select(0, idx).mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
         if mask is None:
@@ -269,6 +281,34 @@ class DQNLearner:
         denom = v.sqrt().div_(bias2_sqrt).add_(cfg.adam_eps).div_(step_size)
         new = theta.addcdiv(m, denom, value=-1.0)
         return new if mask is None else torch.where(mask.unsqueeze(1), new, theta)
+
+    def _adam_rows(self, rows: list[int], idx: torch.Tensor, grad: torch.Tensor) -> None:
+        """_adam_step in place on the rows of members rows (host ints; idx the same (K,) long) of the
+        weights, moments and step counts: the same operations, one row at a time."""
+        cfg = self.config
+        beta1, beta2 = cfg.adam_betas
+        grad = self._clipped(grad)
+        step = self.adam_step[idx] + 1
+        self.adam_step.index_copy_(0, idx, step)
+        step_size, bias2_sqrt = self._bias_corrections(step)
+        for k, i in enumerate(rows):
+            m = self.exp_avg[i].lerp_(grad[k], 1 - beta1)
+            v = self.exp_avg_sq[i].mul_(beta2).addcmul_(grad[k], grad[k], value=1 - beta2)
+            denom = v.sqrt().div_(bias2_sqrt[k]).add_(cfg.adam_eps).div_(step_size[k])
+            self.online.flat[i].addcdiv_(m, denom, value=-1.0)
+
+    def _clipped(self, grad: torch.Tensor) -> torch.Tensor:
+        """grad (K, P) scaled so that each member's norm is at most grad_clip_norm (<= 0: unchanged)."""
+        clip = self.config.grad_clip_norm
+        if clip <= 0:
+            return grad
+        norm = grad.square().sum(1, keepdim=True).sqrt_()
+        return grad * (clip / (norm + 1e-6)).clamp_(max=1.0)
+
+    def _bias_corrections(self, step: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Adam's lr / (1 - beta1^t) and sqrt(1 - beta2^t), (K, 1) each, at step counts step (K,)."""
+        beta1, beta2 = self.config.adam_betas
+        return (self.config.lr / (1 - beta1**step)).unsqueeze(1), (1 - beta2**step).sqrt_().unsqueeze(1)
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         """Flat dict of tensors (safetensors-friendly): weights, Adam moments, counters."""

@@ -134,6 +134,29 @@ def test_updating_some_members_leaves_every_other_member_bit_identical():
     assert after["adam.step"].tolist() == [4, 2, 1, 5, 1]
 
 
+def test_in_place_rows_step_bit_for_bit_as_the_gathered_form_with_target_syncs_and_several_members():
+    """The CPU's update steps the members' rows in place (DQNLearner.rows_in_place); it must be the gathered
+    form's step exactly, for one member (the target read as a view) and several, across target syncs."""
+    config = dataclasses.replace(SMALL, target_update_interval=2)
+
+    def run(in_place: bool) -> dict[str, torch.Tensor]:
+        gen = torch.Generator().manual_seed(5)
+        learner = DQNLearner(6, expert_action_mask()[[0, 2, 4, 6, 8, 10]], config, obs_dim=5,
+                             generator=torch.Generator().manual_seed(1))
+        learner.rows_in_place = in_place
+        for members in ([2], [2], [0, 4, 5], [2], [5, 1], [2], [3], [0, 1, 2, 3, 4, 5], [2], [4]):
+            learner.update(torch.tensor(members), _batch(learner.action_mask[members], 16, 5, gen))
+        return _state(learner)
+
+    assert DQNLearner(1, torch.ones(1, 4, dtype=torch.bool), SMALL).rows_in_place  # the CPU's default
+    in_place, gathered = run(True), run(False)
+    assert gathered["target_update_count"].tolist() != [0] * 6 and int(gathered["adam.step"][2]) == 6
+    assert not torch.equal(gathered["target.flat"][2], DQNLearner(6, expert_action_mask()[[0, 2, 4, 6, 8, 10]],
+                           config, obs_dim=5, generator=torch.Generator().manual_seed(1)).target.flat[2])
+    for key in gathered:
+        assert torch.equal(in_place[key], gathered[key]), key
+
+
 @pytest.mark.parametrize("huber", [False, True])
 def test_written_out_gradient_is_the_autograd_gradient_of_the_summed_member_losses(huber):
     gen = torch.Generator().manual_seed(3)
