@@ -158,9 +158,9 @@ class DQNLearner:
         self.target_update_count = torch.zeros(num_members, dtype=torch.long, device=self.device)  # n_i,j
         # `update` on the CPU reads the members' indices on the host (free there) and steps their rows in
         # place: no gathered copies of the moments and weights written back, and the target copied only
-        # when it syncs (an index_copy_ of one member's row costs 44 us, a fifth of an update's Adam;
-        # docs/benchmarks.md). Same operations on the same values, so bit for bit the gathered form, which
-        # stays for devices where a host read waits for the queue (tests/agents/test_dqn.py compares them).
+        # when it syncs (an index_copy_ of one member's row costs 35-44 us: `python scripts/cpu_ops.py
+        # costs`, docs/benchmarks.md). Same operations on the same values, so bit for bit the gathered form,
+        # which stays for devices where a host read waits for the queue (tests/agents/test_dqn.py compares).
         self.rows_in_place = self.device.type == "cpu"
 
     @torch.no_grad()

@@ -129,8 +129,8 @@ def followers_of(behind_keys: torch.Tensor, rank: torch.Tensor, k, b, i) -> torc
 
 
 # Below this many indices torch.take (one call) beats the three of a flat index_select; above it
-# index_select's gather loop wins (2x at 10^5 indices). Measured on the CPU: 1.1 vs 5.2 us at 26 indices,
-# about even at 5,000 (docs/benchmarks.md).
+# index_select's gather loop wins (1.4x at 10^5 indices). `python scripts/cpu_ops.py costs`: 1.2 vs 5.4 us at
+# 26 indices, about even at 5,000 (docs/benchmarks.md, session 12).
 TAKE_MAX = 4096
 
 
