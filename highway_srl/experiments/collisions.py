@@ -98,3 +98,73 @@ def summarise(records: list[dict]) -> dict:
 
 def _mean(values: list[float]) -> float | None:
     return round(sum(values) / len(values), 2) if values else None
+
+
+# --------------------------------------------------------------------------- through which decision
+DECISION_CLASSES = ("lane change kept the speed, R*1 = 0", "Faster or Idle allowed, gap < 0.5 m",
+                    "unshielded: a forbidden action executed", "other")
+CREEP_GAP_M = 0.5  # below this bumper gap the printed safe distance is about zero near standstill
+
+
+class DecisionTrace:
+    """What the rule layer allowed and what was executed in each step, kept through run_episodes'
+    on_transition hook, so each collision can be put down to the decisions before it (scripts/collision_trace.py).
+
+    Why: the census says what was hit; a shielded method's collision also has a decision the shield let
+    through, and which one says where the gap is (Table 1, the control mapping, the safe distance).
+    `classify(env, step, window)` names the first of DECISION_CLASSES that the env's last `window`
+    decisions match: a lane change (LaneChange; LaneLeft / LaneRight of A) executed while R*1 = 0 (Table 1 allows it on R*2 ∧ R*4 alone and the
+    paper's control mapping holds the speed through it); Faster or Idle with R*1 = 1 at a bumper gap under
+    CREEP_GAP_M; an action the method's own safe mask forbade (a method without the gate); other."""
+
+    def __init__(self, method) -> None:
+        self.method, self.steps, self.collided_at = method, [], {}
+
+    def __call__(self, view, t, alive) -> None:
+        model = view.select(t.decision.use_second)
+        self.steps.append({
+            "action": t.decision.action.clone(), "mask": self.method.safe_mask(model).clone(),
+            "r1": model.r_star[:, 0].clone(), "gap1": model.gaps_m[:, 0].clone(),
+            "v": view.snapshot.ego_vx.clone(), "v1": model.vehicles.vx[:, 0].clone(),
+            "x": view.snapshot.ego_x.clone(), "y": view.snapshot.ego_y.clone(),
+            "lane": view.snapshot.ego_lane.clone(), "m": model.m_l_ego.clone(),
+        })
+        new = t.events.collision & alive
+        if bool(new.any()):  # an analysis hook: a host read per step is fine here
+            for e in new.nonzero().flatten().tolist():
+                self.collided_at[e] = len(self.steps) - 1
+
+    def _rows(self, step: int, window: int) -> list[dict]:
+        return [self.steps[k] for k in range(max(0, step - window + 1), step + 1)]
+
+    def classify(self, env: int, step: int, window: int = 8) -> str:
+        names = self.method.action_names
+        rows = self._rows(step, window)
+        acts = [names[int(r["action"][env])] for r in rows]
+        if any(a.startswith("Lane") and not bool(r["r1"][env]) for a, r in zip(acts, rows)):  # A*'s or A's
+            return DECISION_CLASSES[0]
+        if any(a in ("Faster", "Idle") and bool(r["r1"][env]) and float(r["gap1"][env]) < CREEP_GAP_M
+               for a, r in zip(acts, rows)):
+            return DECISION_CLASSES[1]
+        if any(not bool(r["mask"][env, int(r["action"][env])]) for r in rows):
+            return DECISION_CLASSES[2]
+        return DECISION_CLASSES[3]
+
+    def counts(self, window: int = 8) -> dict[str, int]:
+        """Every collision's class, counted (all of DECISION_CLASSES, zeros included)."""
+        out = dict.fromkeys(DECISION_CLASSES, 0)
+        for env, step in self.collided_at.items():
+            out[self.classify(env, step, window)] += 1
+        return out
+
+    def show(self, env: int, step: int, window: int = 8) -> str:
+        """The env's last decisions before its collision in `step`, one line each."""
+        names = self.method.action_names
+        lines = [f"env {env}: collision in step {step}"]
+        for k, r in zip(range(max(0, step - window + 1), step + 1), self._rows(step, window)):
+            allowed = ",".join(n for i, n in enumerate(names) if bool(r["mask"][env, i]))
+            lines.append(f"  step {k:3d} x {float(r['x'][env]):7.1f} y {float(r['y'][env]):5.2f} lane "
+                         f"{int(r['lane'][env])} m*_L {int(r['m'][env])} v {float(r['v'][env]):5.2f} | ahead: gap "
+                         f"{float(r['gap1'][env]):6.2f} m v {float(r['v1'][env]):5.2f} R*1 {int(r['r1'][env])} | "
+                         f"allowed {allowed:<28s} executed {names[int(r['action'][env])]}")
+        return "\n".join(lines)

@@ -24,13 +24,15 @@ from highway_srl.sim import World
 EVAL_SEED_BASE = 1_000_000_000  # evaluation episodes never reuse a training seed
 
 
-def run_episodes(world, method, learner, on_step=None, after_step=None) -> dict[str, torch.Tensor]:
+def run_episodes(world, method, learner, on_step=None, after_step=None, on_transition=None) -> dict[str, torch.Tensor]:
     """Drive one episode in every env of `world` (no resets); per-env results (B,) on the CPU.
 
     on_step(t), if given, is called before step t (0-based) with no tensor read (progress display).
     after_step(world, events, alive), if given, is called after each step with the step's events and the
     envs whose episode was still running before it (analyses of the state as the step left it, e.g.
-    experiments.collisions)."""
+    experiments.collisions). on_transition(view, transition, alive), if given, is called after each step
+    with the view the decision was taken from and the step's Transition (what the rule layer allowed and
+    what was executed: scripts/collision_trace.py)."""
     make_layer = getattr(method, "make_layer", None)  # a Method; duck-typed test policies give layer_options
     layer = make_layer(world.road) if make_layer else SafetyLayer(world.road, **method.layer_options)
     b, dev = world.num_envs, world.device
@@ -44,6 +46,8 @@ def run_episodes(world, method, learner, on_step=None, after_step=None) -> dict[
         if on_step is not None:
             on_step(step_no)
         t = policy_step(method, learner, world, layer, view, no_explore, None, stats, alive=alive)
+        if on_transition is not None:
+            on_transition(view, t, alive)
         view = t.view
         if after_step is not None:
             after_step(world, t.events, alive)

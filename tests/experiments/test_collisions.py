@@ -3,6 +3,7 @@ census of real deployment episodes agrees with their collision count."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from highway_srl.agents.registry import make_method
@@ -90,3 +91,98 @@ def test_the_census_script_reports_a_trained_runs_levels_and_refuses_bad_input_i
     done = subprocess.run([*script, str(tmp_path / "nothing")], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert done.stderr.strip().splitlines()[-1].startswith("collision_census.py: error:")
+
+
+def _closing_on_a_slower_leader() -> World:
+    """One env: the ego at 10 m/s in lane 0, SV 1 15 m ahead (centres) cruising at 7 m/s (its desired speed,
+    no lane changes of its own), lane 1 free, the other SVs parked 500 m on."""
+    w = World("two-lane", "C", num_envs=1, seed=0)
+    s = w.state
+    n = s.x.shape[1]
+    s.x[:, 0], s.y[:, 0], s.heading[:, 0], s.v[:, 0] = 100.0, 0.0, 0.0, 10.0
+    s.x[:, 1:] = 600.0 + 20.0 * torch.arange(1, n, dtype=torch.float32)
+    s.y[:, 1:], s.heading[:, 1:], s.v[:, 1:] = 0.0, 0.0, 1.0
+    s.lane[:] = s.target_lane[:] = 0
+    s.forced[:] = s.lane_change[:] = False
+    s.x[0, 1], s.v[0, 1], s.v0[0, 1] = 115.0, 7.0, 7.0
+    return w
+
+
+def test_repeated_lane_change_behind_a_slower_leader_is_the_paper_mappings_gap_and_the_trace_names_it():
+    """What the trained MP-RL found (docs/results.md, the paper-budget baselines): LaneChange every step with
+    the car ahead too close (R*1 = 0) and the other lane free. Table 1 allows it (R*2 ∧ R*4); once the ego's
+    corner is within ε_p of the line (m*_L,EV = 1) Eq. 35 with R*3 = R*4 = 1 returns C_ID, so the ego turns
+    back, m*_L,EV drops, Eq. 34 starts the change again: it never leaves its lane, LaneChange holds the speed,
+    and it runs into the leader. brake_while_changing (safe profile) brakes through the same decisions."""
+    from types import SimpleNamespace
+
+    from highway_srl.experiments.collisions import DECISION_CLASSES, DecisionTrace
+    from highway_srl.rules import SafetyLayer
+    from highway_srl.rules.safe_actions import LANE_CHANGE
+
+    method = make_method("mp-rl", "two-lane", 1)  # its safe mask (Table 1) and action names
+    for brake in (False, True):
+        world = _closing_on_a_slower_leader()
+        layer = SafetyLayer(world.road, profile="paper", brake_while_changing=brake)
+        trace, view, alive, hit = DecisionTrace(method), layer.observe(world), torch.ones(1, dtype=torch.bool), None
+        for t in range(80):
+            assert bool(view.primary.mask[0, LANE_CHANGE])  # Table 1 allows it in every step
+            action = torch.tensor([LANE_CHANGE])
+            events = world.step(*layer.act(action))
+            trace(view, SimpleNamespace(decision=SimpleNamespace(action=action, use_second=None), events=events), alive)
+            view = layer.observe(world)
+            assert int(world.ego_lane[0]) == 0  # the change never completes
+            if bool(events.collision[0]):
+                hit = t
+                break
+        if brake:
+            assert hit is None
+        else:
+            assert hit is not None and hit < 40 and float(world.state.v[0, 0]) == pytest.approx(10.0, abs=1e-3)
+            assert trace.collided_at == {0: hit}
+            assert trace.classify(0, hit) == DECISION_CLASSES[0]
+            assert trace.counts() == {**dict.fromkeys(DECISION_CLASSES, 0), DECISION_CLASSES[0]: 1}
+            assert "executed LaneChange" in trace.show(0, hit).splitlines()[-1]
+
+
+def test_the_trace_script_agrees_with_evaluate_and_refuses_bad_input_in_one_line(tmp_path, capsys):
+    import importlib.util
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from highway_srl.cli import main
+
+    root = Path(__file__).resolve().parents[2]
+    run = tmp_path / "run"
+    assert main(["train", "--method", "mp-rl", "--traffic", "F", "--envs", "4", "--steps", "64",
+                 "--learning-starts", "32", "--quiet", "--out", str(run)]) == 0
+    spec = importlib.util.spec_from_file_location("collision_trace", root / "scripts" / "collision_trace.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    capsys.readouterr()
+    assert script.main([str(run), "--traffic", "F", "--episodes", "6", "--show", "1"]) == 0
+    captured = capsys.readouterr()
+    out = json.loads(captured.out)["levels"]["F"]
+    assert out["collisions"] == 0 or "executed" in captured.err  # --show printed the first collision's decisions
+    env = {**os.environ, "PYTHONPATH": str(root), "OMP_NUM_THREADS": "1"}
+    census = subprocess.run([sys.executable, str(root / "scripts" / "collision_census.py"), str(run), "--traffic",
+                             "F", "--episodes", "6"], env=env, capture_output=True, text=True, timeout=300)
+    assert census.returncode == 0, census.stderr
+    level = json.loads(census.stdout)["levels"]["F"]
+    assert out["collisions"] == level["collisions"] == sum(out["by_decision"].values())
+    assert out["C_r"] == pytest.approx(level["C_r"], abs=1e-4)
+    for bad, says in ((["--set", "brake=true"], "unknown option 'brake'"), (["--set", "straddle_grouping"], "OPTION=VALUE"),
+                      (["--traffic", "G"], "unknown traffic level"), (["--episodes", "0"], "positive"),
+                      (["--set", "standstill_gap_m=x"], "neither true/false nor a number")):
+        with pytest.raises(SystemExit) as exit_:
+            script.main([str(run), *bad])
+        err = capsys.readouterr().err
+        assert exit_.value.code == 2 and "Traceback" not in err, bad
+        last = err.strip().splitlines()[-1]
+        assert last.startswith("collision_trace.py: error:") and says in last, last
+    with pytest.raises(SystemExit):
+        script.main([str(tmp_path / "nothing")])
+    assert "does not exist" in capsys.readouterr().err
