@@ -5,9 +5,9 @@ the last second before each one and what was executed (highway_srl.experiments.c
 
 The episodes are evaluate's own (the same world seeds, greedy, the run's profile). The census
 (scripts/collision_census.py) says what was hit; this puts each collision in the first class that its last
-`--window` decisions (default 8, one second) match: a lane change executed while R*1 = 0 (Table 1 allows it
-on R*2 and R*4 alone; the paper's control mapping holds the speed through it); Faster or Idle allowed at a
-bumper gap under 0.5 m; an action the safe mask forbade (methods without the gate); other.
+`--window` decisions (default 8, one second) match: an action the safe mask forbade (methods without the
+gate); a lane change allowed and executed while R*1 = 0 (Table 1 allows it on R*2 and R*4 alone; the paper's
+control mapping holds the speed through it); Faster or Idle allowed at a bumper gap under 0.5 m; other.
 
 `--set OPTION=VALUE` (repeatable) deploys the same weights with one of the safe profile's additions
 (rules.ControlProfile's fields) set over the run's profile, e.g. `--set brake_while_changing=true`, to test

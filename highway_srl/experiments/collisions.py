@@ -101,8 +101,10 @@ def _mean(values: list[float]) -> float | None:
 
 
 # --------------------------------------------------------------------------- through which decision
-DECISION_CLASSES = ("lane change kept the speed, R*1 = 0", "Faster or Idle allowed, gap < 0.5 m",
-                    "unshielded: a forbidden action executed", "other")
+FORBIDDEN, LANE_CHANGE_CYCLE, CREEP, OTHER = (
+    "unshielded: a forbidden action executed", "lane change kept the speed, R*1 = 0",
+    "Faster or Idle allowed, gap < 0.5 m", "other")
+DECISION_CLASSES = (FORBIDDEN, LANE_CHANGE_CYCLE, CREEP, OTHER)  # in the order classify tries them
 CREEP_GAP_M = 0.5  # below this bumper gap the printed safe distance is about zero near standstill
 
 
@@ -113,9 +115,11 @@ class DecisionTrace:
     Why: the census says what was hit; a shielded method's collision also has a decision the shield let
     through, and which one says where the gap is (Table 1, the control mapping, the safe distance).
     `classify(env, step, window)` names the first of DECISION_CLASSES that the env's last `window`
-    decisions match: a lane change (LaneChange; LaneLeft / LaneRight of A) executed while R*1 = 0 (Table 1 allows it on R*2 ∧ R*4 alone and the
-    paper's control mapping holds the speed through it); Faster or Idle with R*1 = 1 at a bumper gap under
-    CREEP_GAP_M; an action the method's own safe mask forbade (a method without the gate); other."""
+    decisions match: an action the method's own safe mask forbade (a method without the gate: what it ran
+    into is its policy's, not the shield's); a lane change (LaneChange; LaneLeft / LaneRight of A) allowed
+    and executed while R*1 = 0 (Table 1 allows it on R*2 ∧ R*4 alone and the paper's control mapping holds
+    the speed through it); Faster or Idle allowed and executed with R*1 = 1 at a bumper gap under
+    CREEP_GAP_M; other."""
 
     def __init__(self, method) -> None:
         self.method, self.steps, self.collided_at = method, [], {}
@@ -140,15 +144,15 @@ class DecisionTrace:
     def classify(self, env: int, step: int, window: int = 8) -> str:
         names = self.method.action_names
         rows = self._rows(step, window)
-        acts = [names[int(r["action"][env])] for r in rows]
-        if any(a.startswith("Lane") and not bool(r["r1"][env]) for a, r in zip(acts, rows)):  # A*'s or A's
-            return DECISION_CLASSES[0]
+        acts = [(names[int(r["action"][env])], bool(r["mask"][env, int(r["action"][env])]), r) for r in rows]
+        if any(not allowed for _, allowed, _ in acts):
+            return FORBIDDEN
+        if any(a.startswith("Lane") and not bool(r["r1"][env]) for a, _, r in acts):  # A*'s or A's
+            return LANE_CHANGE_CYCLE
         if any(a in ("Faster", "Idle") and bool(r["r1"][env]) and float(r["gap1"][env]) < CREEP_GAP_M
-               for a, r in zip(acts, rows)):
-            return DECISION_CLASSES[1]
-        if any(not bool(r["mask"][env, int(r["action"][env])]) for r in rows):
-            return DECISION_CLASSES[2]
-        return DECISION_CLASSES[3]
+               for a, _, r in acts):
+            return CREEP
+        return OTHER
 
     def counts(self, window: int = 8) -> dict[str, int]:
         """Every collision's class, counted (all of DECISION_CLASSES, zeros included)."""

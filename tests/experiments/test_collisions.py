@@ -116,7 +116,7 @@ def test_repeated_lane_change_behind_a_slower_leader_is_the_paper_mappings_gap_a
     and it runs into the leader. brake_while_changing (safe profile) brakes through the same decisions."""
     from types import SimpleNamespace
 
-    from highway_srl.experiments.collisions import DECISION_CLASSES, DecisionTrace
+    from highway_srl.experiments.collisions import DECISION_CLASSES, LANE_CHANGE_CYCLE, DecisionTrace
     from highway_srl.rules import SafetyLayer
     from highway_srl.rules.safe_actions import LANE_CHANGE
 
@@ -140,8 +140,8 @@ def test_repeated_lane_change_behind_a_slower_leader_is_the_paper_mappings_gap_a
         else:
             assert hit is not None and hit < 40 and float(world.state.v[0, 0]) == pytest.approx(10.0, abs=1e-3)
             assert trace.collided_at == {0: hit}
-            assert trace.classify(0, hit) == DECISION_CLASSES[0]
-            assert trace.counts() == {**dict.fromkeys(DECISION_CLASSES, 0), DECISION_CLASSES[0]: 1}
+            assert trace.classify(0, hit) == LANE_CHANGE_CYCLE
+            assert trace.counts() == {**dict.fromkeys(DECISION_CLASSES, 0), LANE_CHANGE_CYCLE: 1}
             assert "executed LaneChange" in trace.show(0, hit).splitlines()[-1]
 
 
