@@ -26,8 +26,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from highway_srl.constants import TRAFFIC_LEVELS  # noqa: E402
-from highway_srl.experiments.collisions import DecisionTrace  # noqa: E402
-from highway_srl.experiments.evaluate import EVAL_SEED_BASE, run_episodes  # noqa: E402
+from highway_srl.experiments.collisions import DecisionTrace, show_decisions  # noqa: E402
+from highway_srl.experiments.evaluate import evaluation_seeds, run_episodes  # noqa: E402
 from highway_srl.experiments.policy import load_policy  # noqa: E402
 from highway_srl.rules import ControlProfile  # noqa: E402
 from highway_srl.sim import World  # noqa: E402
@@ -64,15 +64,15 @@ def trace(run: str, traffics: list[str], episodes: int, window: int, show: int, 
     out = {"run": run, "method": cfg.method, "scenario": cfg.scenario, "profile": method.profile,
            "options": options, "episodes_per_level": episodes * len(cfg.seeds), "window": window, "levels": {}}
     for traffic in traffics:
-        env_seeds = [EVAL_SEED_BASE + e for _ in cfg.seeds for e in range(episodes)]  # evaluate's (its seed 0)
+        env_seeds = evaluation_seeds(len(cfg.seeds), episodes)  # evaluate's episodes
         world = World(cfg.scenario, traffic, cfg.adversarial, len(env_seeds), "cpu", env_seeds,
                       adversary=cfg.adversary)
-        rec = DecisionTrace(method)
-        results = run_episodes(world, method, learner, on_transition=rec)
-        for env, step in sorted(rec.collided_at.items())[:show]:
-            print(rec.show(env, step, window), file=sys.stderr)
+        trace = DecisionTrace(method, window)
+        results = run_episodes(world, method, learner, on_transition=trace)
+        for record in trace.records[:show]:
+            print(show_decisions(record), file=sys.stderr)
         out["levels"][traffic] = {"C_r": round(float(1.0 - results["collided"].float().mean()), 4),
-                                  "collisions": len(rec.collided_at), "by_decision": rec.counts(window)}
+                                  "collisions": len(trace.records), "by_decision": trace.counts()}
     return out
 
 

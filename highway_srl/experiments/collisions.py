@@ -109,66 +109,68 @@ CREEP_GAP_M = 0.5  # below this bumper gap the printed safe distance is about ze
 
 
 class DecisionTrace:
-    """What the rule layer allowed and what was executed in each step, kept through run_episodes'
-    on_transition hook, so each collision can be put down to the decisions before it (scripts/collision_trace.py).
+    """What the rule layer allowed and what was executed in the last `window` steps before each collision,
+    kept through run_episodes' on_transition hook (evaluate_run, scripts/collision_trace.py).
 
     Why: the census says what was hit; a shielded method's collision also has a decision the shield let
-    through, and which one says where the gap is (Table 1, the control mapping, the safe distance).
-    `classify(env, step, window)` names the first of DECISION_CLASSES that the env's last `window`
-    decisions match: an action the method's own safe mask forbade (a method without the gate: what it ran
-    into is its policy's, not the shield's); a lane change (LaneChange; LaneLeft / LaneRight of A) allowed
-    and executed while R*1 = 0 (Table 1 allows it on R*2 ∧ R*4 alone and the paper's control mapping holds
-    the speed through it); Faster or Idle allowed and executed with R*1 = 1 at a bumper gap under
-    CREEP_GAP_M; other."""
+    through, and which one says where the gap is (Table 1, the control mapping, the safe distance). Each
+    collision gets the first of DECISION_CLASSES that the env's last `window` decisions match: an action the
+    method's own safe mask forbade (a method without the gate: what it ran into is its policy's, not the
+    shield's); a lane change (LaneChange; LaneLeft / LaneRight of A) allowed and executed while R*1 = 0
+    (Table 1 allows it on R*2 ∧ R*4 alone and the paper's control mapping holds the speed through it);
+    Faster or Idle allowed and executed with R*1 = 1 at a bumper gap under CREEP_GAP_M; other.
+    `records`: one dict per collision, in order: env, step, class, and the decisions (one dict per step)."""
 
-    def __init__(self, method) -> None:
-        self.method, self.steps, self.collided_at = method, [], {}
+    def __init__(self, method, window: int = 8) -> None:
+        if window < 1:
+            raise ValueError(f"window must be positive, got {window}")
+        self.method, self.window, self.step, self.records = method, window, 0, []
+        self._recent: collections.deque = collections.deque(maxlen=window)
 
     def __call__(self, view, t, alive) -> None:
         model = view.select(t.decision.use_second)
-        self.steps.append({
-            "action": t.decision.action.clone(), "mask": self.method.safe_mask(model).clone(),
-            "r1": model.r_star[:, 0].clone(), "gap1": model.gaps_m[:, 0].clone(),
-            "v": view.snapshot.ego_vx.clone(), "v1": model.vehicles.vx[:, 0].clone(),
-            "x": view.snapshot.ego_x.clone(), "y": view.snapshot.ego_y.clone(),
-            "lane": view.snapshot.ego_lane.clone(), "m": model.m_l_ego.clone(),
-        })
+        snap = view.snapshot
+        self._recent.append({"step": self.step, **{k: v.clone() for k, v in (  # buffers may be reused
+            ("action", t.decision.action), ("mask", self.method.safe_mask(model)), ("r1", model.r_star[:, 0]),
+            ("gap1", model.gaps_m[:, 0]), ("v", snap.ego_vx), ("v1", model.vehicles.vx[:, 0]), ("x", snap.ego_x),
+            ("y", snap.ego_y), ("lane", snap.ego_lane), ("m", model.m_l_ego))}})
+        self.step += 1
         new = t.events.collision & alive
-        if bool(new.any()):  # an analysis hook: a host read per step is fine here
-            for e in new.nonzero().flatten().tolist():
-                self.collided_at[e] = len(self.steps) - 1
+        if bool(new.any()):  # an analysis hook: one host read per step, as the census's
+            names = self.method.action_names
+            for env in new.nonzero().flatten().tolist():
+                rows = [{"step": r["step"], "action": names[int(r["action"][env])],
+                         "allowed": [n for i, n in enumerate(names) if bool(r["mask"][env, i])],
+                         **{k: float(r[k][env]) for k in ("gap1", "v", "v1", "x", "y")},
+                         "r1": bool(r["r1"][env]), "lane": int(r["lane"][env]), "m": bool(r["m"][env])}
+                        for r in self._recent]
+                self.records.append({"env": env, "step": self.step - 1, "class": classify_decisions(rows),
+                                     "decisions": rows})
 
-    def _rows(self, step: int, window: int) -> list[dict]:
-        return [self.steps[k] for k in range(max(0, step - window + 1), step + 1)]
-
-    def classify(self, env: int, step: int, window: int = 8) -> str:
-        names = self.method.action_names
-        rows = self._rows(step, window)
-        acts = [(names[int(r["action"][env])], bool(r["mask"][env, int(r["action"][env])]), r) for r in rows]
-        if any(not allowed for _, allowed, _ in acts):
-            return FORBIDDEN
-        if any(a.startswith("Lane") and not bool(r["r1"][env]) for a, _, r in acts):  # A*'s or A's
-            return LANE_CHANGE_CYCLE
-        if any(a in ("Faster", "Idle") and bool(r["r1"][env]) and float(r["gap1"][env]) < CREEP_GAP_M
-               for a, _, r in acts):
-            return CREEP
-        return OTHER
-
-    def counts(self, window: int = 8) -> dict[str, int]:
+    def counts(self) -> dict[str, int]:
         """Every collision's class, counted (all of DECISION_CLASSES, zeros included)."""
         out = dict.fromkeys(DECISION_CLASSES, 0)
-        for env, step in self.collided_at.items():
-            out[self.classify(env, step, window)] += 1
+        for rec in self.records:
+            out[rec["class"]] += 1
         return out
 
-    def show(self, env: int, step: int, window: int = 8) -> str:
-        """The env's last decisions before its collision in `step`, one line each."""
-        names = self.method.action_names
-        lines = [f"env {env}: collision in step {step}"]
-        for k, r in zip(range(max(0, step - window + 1), step + 1), self._rows(step, window)):
-            allowed = ",".join(n for i, n in enumerate(names) if bool(r["mask"][env, i]))
-            lines.append(f"  step {k:3d} x {float(r['x'][env]):7.1f} y {float(r['y'][env]):5.2f} lane "
-                         f"{int(r['lane'][env])} m*_L {int(r['m'][env])} v {float(r['v'][env]):5.2f} | ahead: gap "
-                         f"{float(r['gap1'][env]):6.2f} m v {float(r['v1'][env]):5.2f} R*1 {int(r['r1'][env])} | "
-                         f"allowed {allowed:<28s} executed {names[int(r['action'][env])]}")
-        return "\n".join(lines)
+
+def classify_decisions(rows: list[dict]) -> str:
+    """The first of DECISION_CLASSES that a collision's last decisions (DecisionTrace's rows) match."""
+    if any(r["action"] not in r["allowed"] for r in rows):
+        return FORBIDDEN
+    if any(r["action"].startswith("Lane") and not r["r1"] for r in rows):  # A*'s LaneChange or A's two
+        return LANE_CHANGE_CYCLE
+    if any(r["action"] in ("Faster", "Idle") and r["r1"] and r["gap1"] < CREEP_GAP_M for r in rows):
+        return CREEP
+    return OTHER
+
+
+def show_decisions(record: dict) -> str:
+    """A DecisionTrace record as text: the collision, then its last decisions one line each."""
+    lines = [f"env {record['env']}: collision in step {record['step']} ({record['class']})"]
+    for r in record["decisions"]:
+        lines.append(f"  step {r['step']:3d} x {r['x']:7.1f} y {r['y']:5.2f} lane {r['lane']} m*_L {int(r['m'])} "
+                     f"v {r['v']:5.2f} | ahead: gap {r['gap1']:6.2f} m v {r['v1']:5.2f} R*1 {int(r['r1'])} | "
+                     f"allowed {','.join(r['allowed']):<28s} executed {r['action']}")
+    return "\n".join(lines)

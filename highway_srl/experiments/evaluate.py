@@ -13,7 +13,7 @@ import torch
 
 from highway_srl.agents.rollout import policy_step
 from highway_srl.constants import TRAFFIC_LEVELS
-from highway_srl.experiments.collisions import Census
+from highway_srl.experiments.collisions import Census, DecisionTrace
 from highway_srl.experiments.policy import load_policy
 from highway_srl.experiments.runs import provenance, write_json
 from highway_srl.rules import SafetyLayer, collision_free_rate, mean_interval, success_rate
@@ -65,6 +65,12 @@ def run_episodes(world, method, learner, on_step=None, after_step=None, on_trans
     return out
 
 
+def evaluation_seeds(trained_seeds: int, episodes: int, seed: int = 0) -> list[int]:
+    """The world seeds of an evaluation: `episodes` per trained seed (each seed's model meets the same
+    episodes), offset by `seed`, never a training seed."""
+    return [EVAL_SEED_BASE + seed * 100_003 + e for _ in range(trained_seeds) for e in range(episodes)]
+
+
 def summarise(results: dict[str, torch.Tensor], scenario: str) -> dict:
     cr = collision_free_rate(results["collided"])
     out = {
@@ -105,13 +111,13 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
               "profile": method.profile, "adversary": adversary, "levels": {},
               **provenance()}
     for i, traffic in enumerate(traffics):
-        env_seeds = [EVAL_SEED_BASE + seed * 100_003 + e for _ in range(seeds) for e in range(episodes)]
+        env_seeds = evaluation_seeds(seeds, episodes, seed)
         if backend == "ours":
             world = World(scenario, traffic, adversarial, episodes * seeds, device, env_seeds, adversary=adversary)
             n = world.max_steps
             tick = None if progress is None else lambda t, i=i, n=n: progress(i * n + t, len(traffics) * n)
-            census = Census()
-            results = run_episodes(world, method, learner, tick, census.level(traffic))
+            census, trace = Census(), DecisionTrace(method)
+            results = run_episodes(world, method, learner, tick, census.level(traffic), trace)
             if progress is not None:
                 progress((i + 1) * n, len(traffics) * n)
         else:
@@ -119,7 +125,7 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
             results = _run_backend(backend, scenario, traffic, adversarial, env_seeds, method, learner, episodes, tick)
         level = summarise(results, scenario)
         if backend == "ours":
-            level["collisions"] = census.summary()[traffic]
+            level["collisions"] = {**census.summary()[traffic], "by_decision": trace.counts()}
         level["per_seed"] = {
             str(s): summarise({k: v[i * episodes:(i + 1) * episodes] for k, v in results.items()}, scenario)
             for i, s in enumerate(cfg.seeds)

@@ -22,6 +22,7 @@ from typing import Callable
 
 from highway_srl.constants import TRAFFIC_LEVELS
 from highway_srl.study import paper_numbers as paper
+from highway_srl.experiments.collisions import CREEP, FORBIDDEN, LANE_CHANGE_CYCLE, OTHER
 from highway_srl.experiments.runs import read_json, read_jsonl
 from highway_srl.study.jobs import (ABLATION_SCENE, ABLATIONS, GROUP1_METHODS, GROUP2_SCENES, GROUP3_SCENES,
                                            METHOD_LABELS, MULTILANE_SCENES, OURS, SCENES, TABLE5_METHODS,
@@ -569,12 +570,13 @@ def collisions(results: Results) -> Table:
             c = lv.get("collisions")
             if not c or not c["collisions"]:  # none, or an evaluation written before the census
                 continue
-            kinds = c["by_kind"]
+            kinds, decided = c["by_kind"], c.get("by_decision")  # by_decision: evaluations since the trace
             rows.append({"scene": SCENES[res.job.scene].label, "scene_key": res.job.scene, "method": res.job.label,
                          "method_key": res.job.method, "level": level, "episodes": lv["episodes"],
                          "collisions": c["collisions"], **{k: kinds.get(k, 0) for k in COLLISION_KINDS},
                          **{k: c.get(k) for k in ("while_ego_changing", "sv_changing", "sv_forced_cut_in",
-                                                  "mean_ego_speed", "mean_sv_speed")}})
+                                                  "mean_ego_speed", "mean_sv_speed")},
+                         **{key: (decided or {}).get(name) for key, name in DECISION_COLUMNS.items()}})
     cols = [Column("scene", "scene"), Column("scene_key", "scene key"), Column("method", "method"),
             Column("method_key", "method key"), Column("level", "level"), Column("episodes", "episodes", "int"),
             Column("collisions", "collisions", "int"),
@@ -584,15 +586,25 @@ def collisions(results: Results) -> Table:
             Column("sv_changing", "SV changing lanes", "int"),
             Column("sv_forced_cut_in", "SV in a forced cut-in", "int"),
             Column("mean_ego_speed", "ego speed at contact (m/s)", "f2"),
-            Column("mean_sv_speed", "SV speed at contact (m/s)", "f2")]
-    shown = [c for c in cols if c.key not in ("scene_key", "method_key")]
+            Column("mean_sv_speed", "SV speed at contact (m/s)", "f2"),
+            *(Column(key, f"decisions: {name}", "int") for key, name in DECISION_COLUMNS.items())]
+    decisions = Column("decisions", "through which decision: forbidden / lane change at R*1 = 0 / creep / other",
+                       render=lambda r: " / ".join("-" if r[k] is None else str(r[k]) for k in DECISION_COLUMNS))
+    shown = [c for c in cols if c.key not in ("scene_key", "method_key", *DECISION_COLUMNS)] + [decisions]
     return Table("collisions", "What the deployment collisions were", cols, rows, display=Table("", "", shown, rows),
                  notes=["Every deployment collision of the ego, read from the state the colliding step left "
                         "(experiments/collisions.py; docs/paper-notes.md, 'Collision census'). Jobs and levels "
-                        "without a collision, and evaluations written before the census, are not listed."])
+                        "without a collision, and evaluations written before the census, are not listed.",
+                        "Through which decision (the decision trace, docs/paper-notes.md): in the last 8 "
+                        "decisions, an action the method's safe mask forbade; else a lane change allowed and "
+                        "executed while R*1 = 0 (the printed mappings hold the speed through it); else Faster "
+                        "or Idle allowed at a bumper gap under 0.5 m (creep); else other. '-': an evaluation "
+                        "written before the trace."])
 
 
 COLLISION_KINDS = ("front", "rear", "side", "road")
+DECISION_COLUMNS = {"decision_forbidden": FORBIDDEN, "decision_lane_change_r1": LANE_CHANGE_CYCLE,
+                    "decision_creep": CREEP, "decision_other": OTHER}
 
 
 REPORT_TABLES = ("table5", "table6", "group1_deployment", "group2", "multilane", "group3", "collisions")

@@ -129,13 +129,14 @@ def run_transfer(out: str | Path, settings: TransferSettings = TransferSettings(
     for sim in simulators:
         if sim not in SIMULATORS:
             raise ValueError(f"unknown simulator {sim!r}; choose from {', '.join(SIMULATORS)}")
+    if jobs < 1:
+        raise ValueError(f"--jobs must be positive, got {jobs}")
+    all_jobs = transfer_jobs(settings, methods, scenes)  # unknown methods and scenes are named first
+    for sim in simulators:  # then what is not installed: a typo is not answered with "pip install"
         missing = missing_modules(sim)
         if missing:
             raise ValueError(f"simulator {sim!r} needs modules {', '.join(missing)}: "
                              f"pip install 'highway-srl[{sim}]' (or leave it out of --simulators)")
-    if jobs < 1:
-        raise ValueError(f"--jobs must be positive, got {jobs}")
-    all_jobs = transfer_jobs(settings, methods, scenes)
     root = Path(out)
     state = _open(root, settings)
     root.mkdir(parents=True, exist_ok=True)

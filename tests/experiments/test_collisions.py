@@ -116,7 +116,7 @@ def test_repeated_lane_change_behind_a_slower_leader_is_the_paper_mappings_gap_a
     and it runs into the leader. brake_while_changing (safe profile) brakes through the same decisions."""
     from types import SimpleNamespace
 
-    from highway_srl.experiments.collisions import DECISION_CLASSES, LANE_CHANGE_CYCLE, DecisionTrace
+    from highway_srl.experiments.collisions import DECISION_CLASSES, LANE_CHANGE_CYCLE, DecisionTrace, show_decisions
     from highway_srl.rules import SafetyLayer
     from highway_srl.rules.safe_actions import LANE_CHANGE
 
@@ -136,13 +136,31 @@ def test_repeated_lane_change_behind_a_slower_leader_is_the_paper_mappings_gap_a
                 hit = t
                 break
         if brake:
-            assert hit is None
+            assert hit is None and trace.records == []
         else:
             assert hit is not None and hit < 40 and float(world.state.v[0, 0]) == pytest.approx(10.0, abs=1e-3)
-            assert trace.collided_at == {0: hit}
-            assert trace.classify(0, hit) == LANE_CHANGE_CYCLE
+            [record] = trace.records
+            assert (record["env"], record["step"], record["class"]) == (0, hit, LANE_CHANGE_CYCLE)
+            assert [r["step"] for r in record["decisions"]] == list(range(hit - 7, hit + 1))  # the last 8
+            assert all(r["action"] == "LaneChange" and "LaneChange" in r["allowed"] and not r["r1"]
+                       for r in record["decisions"])
             assert trace.counts() == {**dict.fromkeys(DECISION_CLASSES, 0), LANE_CHANGE_CYCLE: 1}
-            assert "executed LaneChange" in trace.show(0, hit).splitlines()[-1]
+            assert show_decisions(record).splitlines()[-1].endswith("executed LaneChange")
+
+
+def test_decision_classes_from_constructed_decisions():
+    from highway_srl.experiments.collisions import CREEP, FORBIDDEN, LANE_CHANGE_CYCLE, OTHER, classify_decisions
+
+    def row(action, allowed, r1=True, gap1=10.0):
+        return {"action": action, "allowed": allowed, "r1": r1, "gap1": gap1}
+
+    cycle = row("LaneChange", ["Slower", "LaneChange"], r1=False, gap1=1.0)
+    creep = row("Faster", ["Faster", "Idle", "Slower"], gap1=0.2)
+    assert classify_decisions([row("Idle", ["Idle"]), cycle]) == LANE_CHANGE_CYCLE
+    assert classify_decisions([row("LaneLeft", ["Slower", "LaneLeft"], r1=False)]) == LANE_CHANGE_CYCLE  # A's
+    assert classify_decisions([creep, row("Slower", ["Slower"], r1=False, gap1=0.1)]) == CREEP
+    assert classify_decisions([cycle, creep, row("Faster", ["Slower"], r1=False)]) == FORBIDDEN  # first
+    assert classify_decisions([row("Slower", ["Slower"], r1=False, gap1=0.1), row("Idle", ["Idle"])]) == OTHER
 
 
 def test_the_trace_script_agrees_with_evaluate_and_refuses_bad_input_in_one_line(tmp_path, capsys):

@@ -14,6 +14,7 @@ from pathlib import Path
 import torch
 
 from highway_srl.constants import TRAFFIC_LEVELS
+from highway_srl.experiments.collisions import CREEP, DECISION_CLASSES
 from highway_srl.experiments.collisions import summarise as census_summary
 from highway_srl.experiments.evaluate import summarise
 from highway_srl.experiments.runs import append_jsonl, provenance, write_json
@@ -66,7 +67,9 @@ def write_fake_job(root: Path, job: Job, numbers: dict | None = None, episodes_p
         results = {key: torch.cat([p[key] for p in per]) for key in per[0]}
         lv = summarise(results, scenario)
         crash = {"kind": "front", "ego_changing": False, "sv": "keeping lane", "ego_speed": 1.0, "sv_speed": 0.0}
-        lv["collisions"] = census_summary([crash] * int(results["collided"].sum()))  # as evaluate's census
+        hits = int(results["collided"].sum())
+        lv["collisions"] = {**census_summary([crash] * hits),  # as evaluate's census and decision trace
+                            "by_decision": {**dict.fromkeys(DECISION_CLASSES, 0), CREEP: hits}}
         lv["per_seed"] = {str(s): summarise(p, scenario) for s, p in zip(job.seeds, per)} if len(per) > 1 else None
         report["levels"][level] = lv
     write_json(folder / "eval.json", report)

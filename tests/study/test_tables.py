@@ -92,7 +92,12 @@ def test_collisions_table_lists_each_job_and_level_that_had_any_by_kind(study):
     for r in rows:
         assert int(r["collisions"]) == int(r["front"]) > 0 and int(r["rear"]) == int(r["side"]) == int(r["road"]) == 0
         assert int(r["collisions"]) == round(0.3 * int(r["episodes"]))  # POOR's C_r 0.7
+        assert int(r["decision_creep"]) == int(r["collisions"])  # the fakes' decision trace: all creep
+        assert int(r["decision_forbidden"]) == int(r["decision_lane_change_r1"]) == int(r["decision_other"]) == 0
     assert "## What the deployment collisions were" in (study / "report.md").read_text()
+    md = (study / "tables" / "collisions.md").read_text()
+    n = rows[0]["collisions"]
+    assert "forbidden / lane change at R*1 = 0 / creep / other" in md and f"| 0 / 0 / {n} / 0 |" in md
 
 
 def test_training_figure_data_has_every_non_ablation_run_and_curves_have_bins(study):
