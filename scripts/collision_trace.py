@@ -67,12 +67,12 @@ def trace(run: str, traffics: list[str], episodes: int, window: int, show: int, 
         env_seeds = evaluation_seeds(len(cfg.seeds), episodes)  # evaluate's episodes
         world = World(cfg.scenario, traffic, cfg.adversarial, len(env_seeds), "cpu", env_seeds,
                       adversary=cfg.adversary)
-        trace = DecisionTrace(method, window)
-        results = run_episodes(world, method, learner, on_transition=trace)
-        for record in trace.records[:show]:
+        recorder = DecisionTrace(method, window)
+        results = run_episodes(world, method, learner, on_transition=recorder)
+        for record in recorder.records[:show]:
             print(show_decisions(record), file=sys.stderr)
         out["levels"][traffic] = {"C_r": round(float(1.0 - results["collided"].float().mean()), 4),
-                                  "collisions": len(trace.records), "by_decision": trace.counts()}
+                                  "collisions": len(recorder.records), "by_decision": recorder.counts()}
     return out
 
 

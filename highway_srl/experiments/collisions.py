@@ -124,7 +124,7 @@ class DecisionTrace:
     def __init__(self, method, window: int = 8) -> None:
         if window < 1:
             raise ValueError(f"window must be positive, got {window}")
-        self.method, self.window, self.step, self.records = method, window, 0, []
+        self.method, self.step, self.records = method, 0, []
         self._recent: collections.deque = collections.deque(maxlen=window)
 
     def __call__(self, view, t, alive) -> None:

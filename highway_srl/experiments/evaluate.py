@@ -32,7 +32,7 @@ def run_episodes(world, method, learner, on_step=None, after_step=None, on_trans
     envs whose episode was still running before it (analyses of the state as the step left it, e.g.
     experiments.collisions). on_transition(view, transition, alive), if given, is called after each step
     with the view the decision was taken from and the step's Transition (what the rule layer allowed and
-    what was executed: scripts/collision_trace.py)."""
+    what was executed: experiments.collisions.DecisionTrace, which evaluate_run passes)."""
     make_layer = getattr(method, "make_layer", None)  # a Method; duck-typed test policies give layer_options
     layer = make_layer(world.road) if make_layer else SafetyLayer(world.road, **method.layer_options)
     b, dev = world.num_envs, world.device
