@@ -192,43 +192,37 @@ class DQNLearner:
 
         rows = idx.tolist() if self.rows_in_place else None
         with torch.no_grad():
-            # one member's target row is read as a view; several are gathered (K, P)
-            old_target = self.target.flat[rows[0]:rows[0] + 1] if rows and len(rows) == 1 else self.target.gather(idx)
+            # one member's rows are read as views; several are gathered (K, P)
+            one = rows is not None and len(rows) == 1
+            old_target = self.target.flat[rows[0]:rows[0] + 1] if one else self.target.gather(idx)
             q_next = ensemble_forward(self.target.unflatten(old_target), next_obs)
             q_next = q_next.masked_fill(~self.action_mask[idx].unsqueeze(1), float("-inf")).amax(-1)
             y = reward + cfg.gamma * (~done).to(q_next.dtype) * q_next
-
-        # A gathered copy of the K members as the leaf: the backward pass and the optimiser
-        # then work on (K, P) only, never on the full (M, P) stack.
-        theta = self.online.flat.detach().index_select(0, idx).requires_grad_()
-        with torch.enable_grad():
-            q = ensemble_forward(self.online.unflatten(theta), obs)
-            q_sa = q.gather(2, action.unsqueeze(2)).squeeze(2)
-            if cfg.huber:
-                per_member = F.smooth_l1_loss(q_sa, y, reduction="none").mean(1)
-            else:
-                per_member = (q_sa - y).square().mean(1)
-            # The sum gives each member the gradient of its own mean loss.
-            (grad,) = torch.autograd.grad(per_member.sum(), theta)
-
-        with torch.no_grad():
-            if rows is None:
-                new_theta = self._adam_step(idx, theta.detach(), grad)
-                self.online.flat.index_copy_(0, idx, new_theta)
-            else:
-                self._adam_rows(rows, idx, grad)
+            # the gradient written out (the same as autograd's: tests/agents/test_dqn.py), without the
+            # autograd engine's bookkeeping and its final concatenation of the layers' gradients
+            theta = self.online.flat[rows[0]:rows[0] + 1] if one else self.online.gather(idx)
+            q_sa, per_member, grad = td_loss_and_grad(self.online, theta, obs, action, y, cfg.huber)
+            if rows is None:  # gathered rows stepped, then written back
+                m, v = self.exp_avg.index_select(0, idx), self.exp_avg_sq.index_select(0, idx)
+                self._adam_fused(idx, grad, theta.unbind(0), m.unbind(0), v.unbind(0))
+                self.online.flat.index_copy_(0, idx, theta)
+                self.exp_avg.index_copy_(0, idx, m)
+                self.exp_avg_sq.index_copy_(0, idx, v)
+            else:  # the members' rows stepped in place
+                flat = self.online.flat.detach()
+                self._adam_fused(idx, grad, [flat[i] for i in rows], [self.exp_avg[i] for i in rows],
+                                 [self.exp_avg_sq[i] for i in rows])
             # Algorithm 1: n_i,j counts the member's updates; when it exceeds n_t the target
             # takes the online weights and the counter restarts.
             count = self.target_update_count[idx] + 1
             sync = count > cfg.target_update_interval
             self.target_update_count.index_copy_(0, idx, torch.where(sync, torch.zeros_like(count), count))
             if rows is None:
-                self.target.flat.index_copy_(0, idx, torch.where(sync.unsqueeze(1), new_theta, old_target))
+                self.target.flat.index_copy_(0, idx, torch.where(sync.unsqueeze(1), theta, old_target))
             else:
                 for k in sync.nonzero().flatten().tolist():
                     self.target.flat[rows[k]].copy_(self.online.flat[rows[k]])
-        q_sa = q_sa.detach()
-        return UpdateStats(per_member.detach(), q_sa.mean(1), (y - q_sa).abs().mean(1))
+        return UpdateStats(per_member, q_sa.mean(1), (y - q_sa).abs().mean(1))
 
     @torch.no_grad()
     def update_masked(self, members: torch.Tensor, batch: dict[str, torch.Tensor], mask: torch.Tensor) -> UpdateStats:
@@ -282,28 +276,38 @@ class DQNLearner:
         new = theta.addcdiv(m, denom, value=-1.0)
         return new if mask is None else torch.where(mask.unsqueeze(1), new, theta)
 
-    def _adam_rows(self, rows: list[int], idx: torch.Tensor, grad: torch.Tensor) -> None:
-        """_adam_step in place on the rows of members rows (host ints; idx the same (K,) long) of the
-        weights, moments and step counts: the same operations, one row at a time."""
+    def _adam_fused(self, idx: torch.Tensor, grad: torch.Tensor, params, exp_avgs, exp_avg_sqs) -> None:
+        """The compact update's Adam with per-member gradient-norm clipping: members idx (K,), their
+        gradients grad (K, P), and their weight, first- and second-moment rows (K tensors (P,) each, stepped
+        in place). torch's fused Adam kernel (what torch.optim.Adam(fused=True) runs): one pass over a row
+        where the elementwise form (_adam_step) takes eight, each through memory, since a member's rows
+        (1.2 MB) and the batch's activations do not stay in a 2 MB cache (docs/benchmarks.md: 1.1x the
+        training step on the CPU). Same step as _adam_step to float rounding (tests/agents/test_dqn.py);
+        the clipping's factor enters as the kernel's gradient divisor."""
         cfg = self.config
         beta1, beta2 = cfg.adam_betas
-        grad = self._clipped(grad)
         step = self.adam_step[idx] + 1
         self.adam_step.index_copy_(0, idx, step)
-        step_size, bias2_sqrt = self._bias_corrections(step)
-        for k, i in enumerate(rows):
-            m = self.exp_avg[i].lerp_(grad[k], 1 - beta1)
-            v = self.exp_avg_sq[i].mul_(beta2).addcmul_(grad[k], grad[k], value=1 - beta2)
-            denom = v.sqrt().div_(bias2_sqrt[k]).add_(cfg.adam_eps).div_(step_size[k])
-            self.online.flat[i].addcdiv_(m, denom, value=-1.0)
+        divisor = self._clip_divisor(grad)
+        for k in range(len(params)):
+            # the public torch.optim.adam.adam(fused=True) would regroup the tensors and add the step count on
+            # every call (tens of us); the kernel itself takes the count as given
+            torch._fused_adam_([params[k]], [grad[k]], [exp_avgs[k]], [exp_avg_sqs[k]], [], [step[k]],
+                               lr=cfg.lr, beta1=beta1, beta2=beta2, weight_decay=0.0, eps=cfg.adam_eps,
+                               amsgrad=False, maximize=False, grad_scale=None if divisor is None else divisor[k])
 
     def _clipped(self, grad: torch.Tensor) -> torch.Tensor:
         """grad (K, P) scaled so that each member's norm is at most grad_clip_norm (<= 0: unchanged)."""
+        divisor = self._clip_divisor(grad)
+        return grad if divisor is None else grad / divisor.unsqueeze(1)
+
+    def _clip_divisor(self, grad: torch.Tensor) -> torch.Tensor | None:
+        """(K,): what each member's gradient grad (K, P) is divided by so that its norm is at most
+        grad_clip_norm, as _clipped scales it (torch.nn.utils.clip_grad_norm_'s rule); None: no clipping."""
         clip = self.config.grad_clip_norm
         if clip <= 0:
-            return grad
-        norm = grad.square().sum(1, keepdim=True).sqrt_()
-        return grad * (clip / (norm + 1e-6)).clamp_(max=1.0)
+            return None
+        return ((torch.linalg.vector_norm(grad, dim=1) + 1e-6) / clip).clamp_(min=1.0)
 
     def _bias_corrections(self, step: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Adam's lr / (1 - beta1^t) and sqrt(1 - beta2^t), (K, 1) each, at step counts step (K,)."""
