@@ -1,4 +1,4 @@
-"""Two small CPU facts behind session 12's changes, measured: what single operations cost, and which
+"""Small CPU facts behind the changes of sessions 12 and 14, measured: what single operations cost, and which
 operations' last bits depend on the machine's MKL.
 
     OMP_NUM_THREADS=1 python scripts/cpu_ops.py costs
@@ -7,7 +7,8 @@ operations' last bits depend on the machine's MKL.
 
 costs: microseconds per call (best of 5 timings) of `take_flat`'s two forms at growing index counts (why it
 switches to torch.take below sim.traffic.TAKE_MAX), and of the bookkeeping the gathered DQN update did per
-member row of 76,548 floats (index_select, index_copy_, torch.where; why the CPU update works on rows).
+member row of 76,548 floats (index_select, index_copy_, torch.where; why the CPU update works on rows), and
+the two forms of ReLU's backward and of Adam on a row that the compact update chooses between (session 14).
 hashes: an md5 prefix of each operation's output on 10^5 fixed floats; run it under different MKL settings
 (as above) and compare: the operations whose hash moves take their last bits from MKL's code path, which MKL
 picks by CPU model (why the pins run under MKL_CBWR=COMPATIBLE: tests/pins/pin_data.py). One JSON object.
@@ -54,7 +55,26 @@ def costs() -> dict:
                "index_copy_": best_us(lambda: flat.index_copy_(0, idx, row)),
                "torch.where": best_us(lambda: torch.where(no, row, row)),
                "lerp_ on the row view": best_us(lambda: flat[3].lerp_(row[0], 0.1))}
-    return {"what": "costs", "threads": torch.get_num_threads(), "take_flat_us": take, "member_row_us": row_ops}
+    # the compact update's two choices of session 14 (agents/dqn.py): ReLU's backward on a batch's (1, 256, 256)
+    # hidden layer, and Adam on one member's row, elementwise (eight passes) or torch's fused kernel (one); warm
+    # here, where in training the rows come from memory (the training step's figures: docs/benchmarks.md)
+    grad, hidden = torch.randn(1, 256, 256, generator=gen), torch.randn(1, 256, 256, generator=gen).relu()
+    g, m, v, w = (torch.randn(flat.shape[1], generator=gen).abs() for _ in range(4))
+    step, size, corr = torch.tensor(5.0), 1e-4 / (1 - 0.9**5), (1 - 0.999**5) ** 0.5
+
+    def elementwise():
+        m.lerp_(g, 0.1)
+        v.mul_(0.999).addcmul_(g, g, value=0.001)
+        w.addcdiv_(m, v.sqrt().div_(corr).add_(1e-8).div_(size), value=-1.0)
+
+    update = {"relu_backward: product with the mask": best_us(lambda: grad * (hidden > 0)),
+              "relu_backward: threshold_backward": best_us(lambda: torch.ops.aten.threshold_backward(grad, hidden, 0.0)),
+              "adam row: elementwise": best_us(elementwise),
+              "adam row: torch._fused_adam_": best_us(lambda: torch._fused_adam_(
+                  [w], [g], [m], [v], [], [step], lr=1e-4, beta1=0.9, beta2=0.999, weight_decay=0.0, eps=1e-8,
+                  amsgrad=False, maximize=False))}
+    return {"what": "costs", "threads": torch.get_num_threads(), "take_flat_us": take, "member_row_us": row_ops,
+            "dqn_update_us": update}
 
 
 def hashes() -> dict:

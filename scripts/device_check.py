@@ -70,7 +70,7 @@ def run_part(args) -> dict:
     """One part, in this process; returns its figures."""
     device = "cpu" if args.cpu_smoke else "cuda"
     if args.part == "tests":
-        tests = ["tests/sim/test_gpu.py", "tests/sim/test_compile.py"]
+        tests = ["tests/sim/test_gpu.py", "tests/agents/test_gpu_update.py", "tests/sim/test_compile.py"]
         cmd = [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", *tests]
         if args.cpu_smoke:
             # a token run of the machinery: one of the cheapest tests there (the graph checks trace for seconds)

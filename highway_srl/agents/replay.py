@@ -116,7 +116,9 @@ class ExpertReplay:
         size = self.size[members].unsqueeze(1)
         slot = (u * size).long().clamp_(max=self.capacity - 1)
         row = members.unsqueeze(1) * self.capacity + slot
-        return {key: value[row] for key, value in self.storage.items()}
+        # index_select on the flat rows: the same values as value[row], without advanced indexing's set-up
+        flat = row.reshape(-1)
+        return {key: value.index_select(0, flat).view(*row.shape, *value.shape[1:]) for key, value in self.storage.items()}
 
     def _filled_rows(self, size: torch.Tensor) -> torch.Tensor:
         """Row indices of the filled part, member by member: rows [m*capacity, m*capacity + size[m]), then
