@@ -250,41 +250,36 @@ class DQNLearner:
         self.target.flat.index_copy_(0, idx, torch.where(sync.unsqueeze(1), new_theta, old_target))
         return UpdateStats(per_member, q_sa.mean(1), (y - q_sa).abs().mean(1))
 
-    def _adam_step(self, idx: torch.Tensor, theta: torch.Tensor, grad: torch.Tensor,
-                   mask: torch.Tensor | None = None) -> torch.Tensor:
-        """Adam with per-member gradient-norm clipping on gathered rows theta, grad (K, P).
+    def _adam_step(self, idx: torch.Tensor, theta: torch.Tensor, grad: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """The static update's Adam with per-member gradient-norm clipping on gathered rows theta, grad (K, P),
+        written elementwise (a compiler fuses it; the compact update runs torch's fused kernel: _adam_fused).
 
-        Updates the moments and step counts of members idx and returns their new weights (K, P);
-        mask (K,) bool: only those members step, the others keep their moments, count and weights.
+        Only the members idx where mask (K,) is True step: their moments and step counts are updated and their
+        new weights returned (K, P); the others keep their moments, count and weights.
         """
         cfg = self.config
         beta1, beta2 = cfg.adam_betas
         grad = self._clipped(grad)
         old_step = self.adam_step[idx]
         step = old_step + 1
-        self.adam_step.index_copy_(0, idx, step if mask is None else torch.where(mask, step, old_step))
+        self.adam_step.index_copy_(0, idx, torch.where(mask, step, old_step))
         step_size, bias2_sqrt = self._bias_corrections(step)
         m = self.exp_avg.index_select(0, idx).lerp_(grad, 1 - beta1)
         v = self.exp_avg_sq.index_select(0, idx).mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
-        if mask is None:
-            self.exp_avg.index_copy_(0, idx, m)
-            self.exp_avg_sq.index_copy_(0, idx, v)
-        else:
-            rows = mask.unsqueeze(1)
-            self.exp_avg.index_copy_(0, idx, torch.where(rows, m, self.exp_avg.index_select(0, idx)))
-            self.exp_avg_sq.index_copy_(0, idx, torch.where(rows, v, self.exp_avg_sq.index_select(0, idx)))
+        rows = mask.unsqueeze(1)
+        self.exp_avg.index_copy_(0, idx, torch.where(rows, m, self.exp_avg.index_select(0, idx)))
+        self.exp_avg_sq.index_copy_(0, idx, torch.where(rows, v, self.exp_avg_sq.index_select(0, idx)))
         # theta - lr / (1 - beta1^t) * m / (sqrt(v / (1 - beta2^t)) + eps), as torch.optim.Adam
         denom = v.sqrt().div_(bias2_sqrt).add_(cfg.adam_eps).div_(step_size)
-        new = theta.addcdiv(m, denom, value=-1.0)
-        return new if mask is None else torch.where(mask.unsqueeze(1), new, theta)
+        return torch.where(rows, theta.addcdiv(m, denom, value=-1.0), theta)
 
     def _adam_fused(self, idx: torch.Tensor, grad: torch.Tensor, params, exp_avgs, exp_avg_sqs) -> None:
         """The compact update's Adam with per-member gradient-norm clipping: members idx (K,), their
         gradients grad (K, P), and their weight, first- and second-moment rows (K tensors (P,) each, stepped
         in place). torch's fused Adam kernel (what torch.optim.Adam(fused=True) runs): one pass over a row
         where the elementwise form (_adam_step) takes eight, each through memory, since a member's rows
-        (1.2 MB) and the batch's activations do not stay in a 2 MB cache (docs/benchmarks.md: 1.1x the
-        training step on the CPU). Same step as _adam_step to float rounding (tests/agents/test_dqn.py);
+        (1.2 MB) and the batch's activations do not stay in a 2 MB cache (docs/benchmarks.md, session 14).
+        Same step as _adam_step to float rounding (tests/agents/test_dqn.py);
         the clipping's factor enters as the kernel's gradient divisor."""
         cfg = self.config
         beta1, beta2 = cfg.adam_betas
