@@ -1,26 +1,37 @@
-"""One CPU World's envs stepped in several worker processes, on state in shared memory (World(processes=P)).
+"""One CPU World's envs stepped in several processes, on state in shared memory (World(processes=P)).
 
-Why: on the CPU an eager step is a fixed ~900 operations whatever the batch, each with a dispatch cost,
+Why: on the CPU an eager step is a fixed ~1,000 operations whatever the batch, each with a dispatch cost,
 and a second intra-op thread barely helps (1.1x: most operations are too small to split). Separate
 processes each step a contiguous slice of the envs at once, so P cores do P slices' work in the time of
 one slice. The fixed cost does not split (each process pays it for its slice): the gain grows with the
 batch (docs/benchmarks.md has the figures).
 
-How: the world's state tensors are moved to shared memory; each worker is forked from the parent with a view
-World over its slice of those tensors (World.envs_view), so a step of the view updates the parent's state
-in place and nothing is copied back. The ego's commands and the step's events go through shared buffers;
-a pipe per worker carries only the operation's name and the world's settings. Env b's draws depend only
-on its own seed and counters (sim/rng.py), so a sharded world runs bit for bit the episodes of an
-unsharded one (tests/sim/test_processes.py).
+How: the world's state tensors are moved to shared memory; this process steps the first slice itself and
+P - 1 workers, forked from it, each step one of the others, through a view World over its slice of those
+tensors (World.envs_view), so a step of a view updates the world's state in place and nothing is copied
+back. The ego's commands and the step's events go through shared buffers; a pipe per worker carries only
+the operation's name and the world's settings. Env b's draws depend only on its own seed and counters
+(sim/rng.py), so a sharded world runs bit for bit the episodes of an unsharded one
+(tests/sim/test_processes.py).
+
+Waiting spins for up to SPIN_S before it blocks, on both sides. A blocked process is woken through the
+scheduler: on the 2-core hosts measured, waking the workers and being woken by them cost 0.3-0.5 ms of a
+9 ms step at 4,096 envs (the parent's send alone took 0.1-0.6 ms: the woken worker preempted it), and P
+workers besides an idle parent were P + 1 processes for P cores. Stepping the first slice here and
+spinning while the others finish made World(processes=2) 1.06x faster (docs/benchmarks.md, session 15).
+A spin is bounded, so a world left idle between steps costs at most SPIN_S of each core after a step.
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import os
+import time
 import weakref
 
 import torch
+
+SPIN_S = 0.002  # seconds a waiting process polls before it blocks (see above)
 
 
 def check_processes(processes, num_envs: int, compile, device: torch.device) -> None:
@@ -54,7 +65,10 @@ class WorldProcesses:
         self.mask = torch.zeros(b, dtype=torch.bool).share_memory_()
         self.events = {name: torch.zeros(b, dtype=dtype).share_memory_() for name, dtype in event_dtypes.items()}
         self.conns, self.procs = [], []
-        for lo, hi in slices(b, processes):
+        (lo, hi), *rest = slices(b, processes)
+        self.local = (world.envs_view(lo, hi), lo, hi)  # this process steps the first slice itself
+        self.local_name = f"highway-srl world {lo}:{hi} (this process)"
+        for lo, hi in rest:
             parent_end, child_end = ctx.Pipe()
             # the child closes the parents' ends it inherits, so that it sees the parent go
             proc = ctx.Process(target=_serve, args=(child_end, [*self.conns, parent_end], world.envs_view(lo, hi),
@@ -66,7 +80,7 @@ class WorldProcesses:
         self._finalizer = weakref.finalize(self, _stop, self.conns, self.procs)
 
     def call(self, op: str, settings: dict) -> None:
-        """Run op ("step", "step_and_reset", "reset", "reset_all", "reset_where") in every worker and wait."""
+        """Run op ("step", "step_and_reset", "reset", "reset_all", "reset_where") on every slice and wait."""
         if not self._finalizer.alive:
             raise RuntimeError("this world's processes have been closed")
         failures = {}
@@ -75,18 +89,28 @@ class WorldProcesses:
                 conn.send((op, settings))
             except OSError:  # its end of the pipe is gone
                 failures[i] = _exited(self.procs[i])
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)  # one core per slice: the others are the workers'
+        try:
+            local_failure = _run(*self.local, self, op, settings)
+        finally:
+            torch.set_num_threads(threads)
         for i, conn in enumerate(self.conns):
             if i in failures:
                 continue
             try:
+                _spin(conn)
                 reply = conn.recv()
             except (EOFError, OSError):
                 reply = _exited(self.procs[i])
             if reply is not None:
                 failures[i] = reply
+        if local_failure is not None:
+            failures[-1] = local_failure
         if failures:
             self.close()
-            raise RuntimeError("; ".join(f"world process {self.procs[i].name} {why}" for i, why in failures.items()))
+            raise RuntimeError("; ".join(f"world process {self.procs[i].name if i >= 0 else self.local_name} {why}"
+                                         for i, why in failures.items()))
 
     def close(self) -> None:
         self._finalizer()
@@ -120,6 +144,7 @@ def _serve(conn, inherited, view, lo: int, hi: int, bufs: WorldProcesses) -> Non
     parent = os.getppid()
     while True:
         try:
+            _spin(conn)
             while not conn.poll(1.0):
                 if os.getppid() != parent:  # the parent was killed: nobody will send again
                     return
@@ -129,21 +154,33 @@ def _serve(conn, inherited, view, lo: int, hi: int, bufs: WorldProcesses) -> Non
         if message is None:
             return
         op, settings = message
-        try:
-            for name, value in settings.items():
-                setattr(view, name, value)
-            if op in ("step", "step_and_reset"):
-                events = getattr(view, op)(bufs.lane[lo:hi], bufs.speed[lo:hi])
-                for name, buf in bufs.events.items():
-                    buf[lo:hi] = getattr(events, name)
-            elif op == "reset":
-                view.reset(bufs.mask[lo:hi])
-            elif op == "reset_all":
-                view.reset()
-            elif op == "reset_where":
-                view.reset_where(bufs.mask[lo:hi])
-            else:
-                raise ValueError(f"unknown operation {op!r}")
-            conn.send(None)
-        except Exception as e:  # reported by the parent as one line
-            conn.send(f"failed: {type(e).__name__}: {e}")
+        conn.send(_run(view, lo, hi, bufs, op, settings))
+
+
+def _spin(conn) -> None:
+    """Poll conn until a message is there or SPIN_S has passed (the caller then blocks on it)."""
+    deadline = time.perf_counter() + SPIN_S
+    while not conn.poll(0) and time.perf_counter() < deadline:
+        pass
+
+
+def _run(view, lo: int, hi: int, bufs: WorldProcesses, op: str, settings: dict) -> str | None:
+    """Run op on the slice lo:hi (view); None, or the failure as one line."""
+    try:
+        for name, value in settings.items():
+            setattr(view, name, value)
+        if op in ("step", "step_and_reset"):
+            events = getattr(view, op)(bufs.lane[lo:hi], bufs.speed[lo:hi])
+            for name, buf in bufs.events.items():
+                buf[lo:hi] = getattr(events, name)
+        elif op == "reset":
+            view.reset(bufs.mask[lo:hi])
+        elif op == "reset_all":
+            view.reset()
+        elif op == "reset_where":
+            view.reset_where(bufs.mask[lo:hi])
+        else:
+            raise ValueError(f"unknown operation {op!r}")
+        return None
+    except Exception as e:  # reported by the parent as one line
+        return f"failed: {type(e).__name__}: {e}"

@@ -110,9 +110,10 @@ class World:
     mode. The compiled step follows eager to float rounding (tests/sim/test_compile.py); eager runs
     reproduce bit for bit. On the CPU it needs a C++ compiler.
 
-    processes: step the envs in this many worker processes of one thread each, P contiguous slices of the
-    batch (CPU, eager; sim/processes.py): the same episodes bit for bit, faster at large batches on several
-    cores. The state stays readable and editable in this process between steps; close() ends the workers.
+    processes: step the envs in this many processes of one thread each, P contiguous slices of the batch:
+    this one steps the first slice, P - 1 forked workers the others (CPU, eager; sim/processes.py): the
+    same episodes bit for bit, faster at large batches on several cores. The state stays readable and
+    editable in this process between steps; close() ends the workers.
     """
 
     def __init__(
@@ -203,7 +204,7 @@ class World:
 
     @property
     def worker_pids(self) -> list[int]:
-        """The process ids of the worker processes (processes > 1), else []."""
+        """The process ids of the P - 1 worker processes (processes = P > 1), else []."""
         return [] if self._processes is None else [p.pid for p in self._processes.procs]
 
     def close(self) -> None:

@@ -137,8 +137,9 @@ def test_bad_processes_are_refused_in_one_line(kwargs, message):
 
 
 def test_a_killed_worker_is_an_error_not_a_hang_and_close_ends_them():
-    w = World("two-lane", "C", num_envs=ENVS, processes=2)
+    w = World("two-lane", "C", num_envs=ENVS, processes=3)
     pids = w.worker_pids
+    assert len(pids) == 2, "this process steps the first slice, one worker each of the others"
     os.kill(pids[1], signal.SIGKILL)
     with pytest.raises(RuntimeError, match=r"world process .* exited"):
         w.step_and_reset(w.ego_lane, torch.full((ENVS,), 20.0))
@@ -151,7 +152,7 @@ def test_a_killed_worker_is_an_error_not_a_hang_and_close_ends_them():
 CHILD = """
 import sys, time, torch
 from highway_srl.sim import World
-w = World("two-lane", "C", num_envs=4, processes=2)
+w = World("two-lane", "C", num_envs=4, processes=3)
 w.step_and_reset(w.ego_lane, torch.full((4,), 20.0))
 print(" ".join(map(str, w.worker_pids)), flush=True)
 time.sleep(60)
