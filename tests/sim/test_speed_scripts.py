@@ -46,3 +46,15 @@ def test_ops_per_step_counts_the_step_by_function_and_times_it():
     # --times: the wall time per step and the profiler's busiest operations, each with its calls per step
     assert out["wall_ms_per_step"] > 0 and 0 < len(out["by_op"]) <= 20
     assert all(v["calls"] > 0 and v["self_ms"] >= 0 for v in out["by_op"].values())
+
+
+def test_processes_timing_times_every_slice_and_the_hand_over():
+    done = _run("scripts/processes_timing.py", "--envs", "6", "--processes", "3", "--steps", "5")
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    assert len(out["slice_busy_ms"]) == 3 and all(b > 0 for b in out["slice_busy_ms"])
+    # the caller's step contains every slice's: what is beyond the slowest is the hand-over, never negative
+    assert out["step_ms"] >= out["slowest_slice_ms"] >= max(out["slice_busy_ms"])
+    assert out["beyond_slowest_ms"] >= 0 and out["env_steps_per_s"] > 0
+    bad = _run("scripts/processes_timing.py", "--envs", "2", "--processes", "3")
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr and "2 <= --processes <= --envs" in bad.stderr
