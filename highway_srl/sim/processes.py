@@ -83,6 +83,19 @@ class WorldProcesses:
         """Run op ("step", "step_and_reset", "reset", "reset_all", "reset_where") on every slice and wait."""
         if not self._finalizer.alive:
             raise RuntimeError("this world's processes have been closed")
+        try:
+            failures = self._call(op, settings)
+        except BaseException:
+            # interrupted (Ctrl-C) with slices half stepped and replies unread: the world cannot go on
+            self.close()
+            raise
+        if failures:
+            self.close()
+            raise RuntimeError("; ".join(f"world process {self.procs[i].name if i >= 0 else self.local_name} {why}"
+                                         for i, why in failures.items()))
+
+    def _call(self, op: str, settings: dict) -> dict:
+        """call's work: the failures by slice (-1: this process's), as one line each."""
         failures = {}
         for i, conn in enumerate(self.conns):
             try:
@@ -107,10 +120,7 @@ class WorldProcesses:
                 failures[i] = reply
         if local_failure is not None:
             failures[-1] = local_failure
-        if failures:
-            self.close()
-            raise RuntimeError("; ".join(f"world process {self.procs[i].name if i >= 0 else self.local_name} {why}"
-                                         for i, why in failures.items()))
+        return failures
 
     def close(self) -> None:
         self._finalizer()

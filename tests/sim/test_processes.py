@@ -149,6 +149,24 @@ def test_a_killed_worker_is_an_error_not_a_hang_and_close_ends_them():
     w.close()  # twice is fine
 
 
+def test_an_interrupt_during_a_step_closes_the_world_instead_of_leaving_it_half_stepped(monkeypatch):
+    w = World("two-lane", "C", num_envs=ENVS, processes=2)
+    pids = w.worker_pids
+    plain = World.step_and_reset
+
+    def interrupted(world, lane, speed):  # this process's own slice (a view) is hit by Ctrl-C
+        if world.num_envs < ENVS:
+            raise KeyboardInterrupt
+        return plain(world, lane, speed)
+
+    monkeypatch.setattr(World, "step_and_reset", interrupted)  # after the fork: the worker steps as before
+    with pytest.raises(KeyboardInterrupt):
+        w.step_and_reset(w.ego_lane, torch.full((ENVS,), 20.0))
+    with pytest.raises(RuntimeError, match="closed"):  # not a step on top of a half-stepped state
+        w.step(w.ego_lane, torch.full((ENVS,), 20.0))
+    assert not [pid for pid in pids if _running(pid)], "a worker was left running"
+
+
 CHILD = """
 import sys, time, torch
 from highway_srl.sim import World
