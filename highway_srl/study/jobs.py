@@ -104,9 +104,9 @@ BUDGETS: dict[str, Budget] = {
         replay_ratio=1.0, eval_episodes=100, group1_levels=tuple(TRAFFIC_LEVELS), checkpoint_every=50_000,
         profiles=("paper", "safe"),
         expected_cost="5e5 steps x 10 seeds per run (the seeds batched in one process), 100 episodes per seed "
-                      "and level, 43 runs. CPU: about 6 h per run on one core (bench train, 10 seeds: 243 "
-                      "env-steps/s; one seed alone ran in 65 min), so 5-10 days for the study on a 2-core CPU, "
-                      "less with more cores (--jobs) or a Ray cluster. GPU (--device cuda): roughly 10 min per "
+                      "and level, 43 runs. CPU: about 2.2 h per run on one core (bench train --seeds 10: 631 "
+                      "env-steps/s on one thread, 2026-12-02; one seed alone trains in 16-35 min), so about 2 "
+                      "days for the study on a 2-core CPU, less with more cores (--jobs) or a Ray cluster. GPU (--device cuda): roughly 10 min per "
                       "run on one H100 (estimated from the measured update cost, not timed end to end), about "
                       "7 h for the 43 runs one after another, less with --jobs 4 sharing the GPU or several "
                       "GPUs through Ray"),
