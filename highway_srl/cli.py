@@ -105,7 +105,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=positive, default=200)
     p.add_argument("--seeds", type=positive, default=1, help="independent agents trained at once (bench train)")
     p.add_argument("--processes", type=positive, default=1,
-                   help="processes stepping the world's envs, this one and P - 1 workers, one thread each (bench sim, CPU)")
+                   help="processes stepping the world's envs, this one and P - 1 workers, one thread each "
+                        "(bench sim, CPU)")
     p.add_argument("--device", default="cpu")
     commands.step_form_args(p)
     p.add_argument("--json", action="store_true")

@@ -17,6 +17,7 @@ import time
 import torch
 
 from highway_srl.sim import World
+from highway_srl.sim.processes import slices
 
 
 def main() -> None:
@@ -42,7 +43,6 @@ def main() -> None:
             count[i] += 1
         return events
 
-    from highway_srl.sim.processes import slices
     first_seed.update({lo: i for i, (lo, _) in enumerate(slices(args.envs, args.processes))})
     World.step_and_reset = timed
     world = World("two-lane", "C", num_envs=args.envs, seed=0, processes=args.processes)

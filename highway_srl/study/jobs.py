@@ -106,10 +106,10 @@ BUDGETS: dict[str, Budget] = {
         expected_cost="5e5 steps x 10 seeds per run (the seeds batched in one process), 100 episodes per seed "
                       "and level, 43 runs. CPU: about 2.2 h per run on one core (bench train --seeds 10: 631 "
                       "env-steps/s on one thread, 2026-12-02; one seed alone trains in 16-35 min), so about 2 "
-                      "days for the study on a 2-core CPU, less with more cores (--jobs) or a Ray cluster. GPU (--device cuda): roughly 10 min per "
-                      "run on one H100 (estimated from the measured update cost, not timed end to end), about "
-                      "7 h for the 43 runs one after another, less with --jobs 4 sharing the GPU or several "
-                      "GPUs through Ray"),
+                      "days for the study on a 2-core CPU, less with more cores (--jobs) or a Ray cluster. "
+                      "GPU (--device cuda): roughly 10 min per run on one H100 (estimated from the measured "
+                      "update cost, not timed end to end), about 7 h for the 43 runs one after another, less "
+                      "with --jobs 4 sharing the GPU or several GPUs through Ray"),
 }
 
 
