@@ -270,14 +270,19 @@ def machine(device: str = "cpu") -> dict:
     return info
 
 
-def _cpu_model() -> str:
+def cpuinfo(field: str) -> str | None:
+    """A field of /proc/cpuinfo's first processor ("model name", "vendor_id", ...), None where there is none."""
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
+            if line.startswith(field):
                 return line.split(":", 1)[1].strip()
     except OSError:
         pass
-    return platform.processor() or platform.machine()
+    return None
+
+
+def _cpu_model() -> str:
+    return cpuinfo("model name") or platform.processor() or platform.machine()
 
 
 def open_study(out: Path, budget: Budget) -> dict:

@@ -12,6 +12,13 @@ settings of PINNED_ENV: torch's AVX2 kernels and MKL's reproducible mode COMPATI
 to give the same results on every x86 CPU, Intel or not; slower, which is why only the pins run in it).
 `python tests/pins/pin_data.py trajectories|methods` prints one kind as JSON (what tests/pins/test_pins.py
 runs).
+
+Even so, an AMD host computes other last bits than an Intel one (all eight trajectories differ on a 2-vCPU
+AMD EPYC at the same commit; MKL's vector math, e.g. exp, gives one answer there whatever MKL_CBWR says).
+So golden.json keeps the fingerprints per CPU vendor (host_key), and a host whose vendor has none recorded
+skips the pins, saying so. `--write` (a deliberate behaviour change) records this host's and drops the
+other vendors' (they no longer hold); `--add-host` adds this host's beside them, for a commit whose
+behaviour is unchanged since they were recorded.
 """
 
 from __future__ import annotations
@@ -115,6 +122,18 @@ def compute(kind: str, tmp: Path) -> dict:
     return {method_key(method, options): method_fingerprint(method, options, tmp) for method, options in PIN_METHODS}
 
 
+def host_key() -> str:
+    """The CPU vendor the fingerprints are recorded for (GenuineIntel, AuthenticAMD, ...), else the machine."""
+    from highway_srl.study.runner import cpuinfo
+
+    return cpuinfo("vendor_id") or platform.machine() or "unknown"
+
+
+def golden_for_host(golden: dict) -> dict | None:
+    """This host's fingerprints in golden.json's {vendor: {kind: ...}}, None if none are recorded for it."""
+    return golden.get(host_key())
+
+
 def check_settings() -> None:
     """Exit with one line if the settings of PINNED_ENV did not take (torch started before they were set)."""
     capability = torch.backends.cpu.get_cpu_capability()
@@ -131,8 +150,13 @@ if __name__ == "__main__":
     with tempfile.TemporaryDirectory() as d:
         data = {kind: compute(kind, Path(d)) for kind in kinds}
     text = json.dumps(data, indent=1, sort_keys=True)
-    if "--write" in sys.argv:
+    write, add = "--write" in sys.argv, "--add-host" in sys.argv
+    if write or add:
         if len(kinds) != 2:
-            sys.exit("--write records both kinds: drop trajectories/methods")
-        GOLDEN.write_text(text + "\n")
+            sys.exit("--write and --add-host record both kinds: drop trajectories/methods")
+        golden = json.loads(GOLDEN.read_text()) if add and GOLDEN.exists() else {}
+        golden[host_key()] = data
+        from highway_srl.agents.checkpoint import write_atomic
+
+        write_atomic(GOLDEN, (json.dumps(golden, indent=1, sort_keys=True) + "\n").encode())
     print(text)

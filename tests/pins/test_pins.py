@@ -9,9 +9,12 @@ import sys
 
 import pytest
 
-from pin_data import GOLDEN, PIN_METHODS, PINNED_ENV, SCENARIOS, method_key
+from pin_data import GOLDEN, PIN_METHODS, PINNED_ENV, SCENARIOS, golden_for_host, host_key, method_key
 
-GOLD = json.loads(GOLDEN.read_text())
+GOLD = golden_for_host(json.loads(GOLDEN.read_text()))
+# the last bits differ between CPU vendors (pin_data.py): a vendor without recorded pins cannot check them
+pytestmark = pytest.mark.skipif(GOLD is None, reason=f"no pins recorded for this CPU vendor ({host_key()}); "
+                                "record them with python tests/pins/pin_data.py --add-host at an unchanged commit")
 
 
 def fingerprints(kind: str) -> dict:
