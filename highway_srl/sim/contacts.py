@@ -10,6 +10,7 @@ from highway_srl.sim.collision import CONTACT_REACH_M, boxes_overlap, front_x_in
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.road import Road
 from highway_srl.sim.state import WorldState
+from highway_srl.sim.traffic import take_flat
 from highway_srl.sim.traffic_model import Neighbours
 
 EDGE_TOLERANCE_M = 0.5  # how far the ego's side may reach past the road's outer edge before it is a collision
@@ -65,19 +66,24 @@ def ego_collision(s: WorldState, road: Road, tables: LaneTables, nb: Neighbours,
 
     Any SV the ego overlaps is its leader or follower (at the start of the step) in a lane both occupy,
     by the argument of sv_contacts, so only those 2K are tested."""
-    n = s.x.shape[1]
-    b = s.x.shape[0]
+    b, n = s.x.shape
     envs, zero = torch.arange(b, device=s.x.device), torch.zeros(b, dtype=torch.long, device=s.x.device)
-    followers = [nb.follower(torch.full_like(zero, k), envs, zero) for k in range(road.num_lanes)]
-    j = torch.cat([nb.leader[:, :, 0].T, torch.stack(followers, 1)], 1)  # (B, 2K)
+    lanes = torch.arange(road.num_lanes, device=s.x.device)[:, None].expand(road.num_lanes, b)
+    j = torch.cat([nb.leader[:, :, 0], nb.follower(lanes, envs, zero)])  # (2K, B): lanes' leaders, followers
     # a missing neighbour (j = N) reads vehicle N - 1 and is masked out by j < n: no padded copies
-    g = lambda t: torch.gather(t, 1, j.clamp(max=n - 1))  # noqa: E731
-    xj, yj = g(s.x), g(s.y)
-    near = ((xj - s.x[:, :1]).abs() < CONTACT_REACH_M) & ((yj - s.y[:, :1]).abs() < CONTACT_REACH_M) & (j < n)
-    if static or s.x.device.type != "cpu" or bool(near.any()):  # on CPU a branch is free and contacts are rare
-        hit = (boxes_overlap(s.x[:, :1], s.y[:, :1], s.heading[:, :1], xj, yj, g(s.heading)) & near).any(1)
+    flat = envs * n + j.clamp(max=n - 1)
+    xj, yj = take_flat(s.x, flat), take_flat(s.y, flat)
+    near = ((xj - s.x[:, 0]).abs() < CONTACT_REACH_M) & ((yj - s.y[:, 0]).abs() < CONTACT_REACH_M) & (j < n)
+    if static or s.x.device.type != "cpu":  # no host read: the dense test under the mask
+        hit = (boxes_overlap(s.x[:, 0], s.y[:, 0], s.heading[:, 0], xj, yj, take_flat(s.heading, flat)) & near).any(0)
     else:
-        hit = torch.zeros_like(near[:, 0])
+        # the box test only for the pairs within reach (a few in a batch: contacts are rare); the same
+        # formulas on the same values as the static form's dense test
+        kk, bb = near.nonzero(as_tuple=True)
+        ego, other = bb * n, take_flat(flat, kk * b + bb)
+        pair = boxes_overlap(take_flat(s.x, ego), take_flat(s.y, ego), take_flat(s.heading, ego),
+                             take_flat(s.x, other), take_flat(s.y, other), take_flat(s.heading, other))
+        hit = torch.zeros_like(near[0]).index_fill_(0, bb[pair], True)
     x, y, w = s.x[:, 0], s.y[:, 0], road.lane_width_m
     e = lateral_half_extent(s.heading[:, 0])
     lo, hi = y - e, y + e

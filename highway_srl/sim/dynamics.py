@@ -15,7 +15,7 @@ from highway_srl.sim.contacts import sv_contacts
 from highway_srl.sim.ego import ego_control
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.road import Road
-from highway_srl.sim.selection import entries, none_left, put
+from highway_srl.sim.selection import entries, flat_index, none_left, put_flat, take_flat
 from highway_srl.sim.spawn import Layout
 from highway_srl.sim.state import WorldState
 from highway_srl.sim.traffic_model import CENTRED_M, Neighbours
@@ -74,7 +74,8 @@ def lateral(s: WorldState, road: Road, v_mid: torch.Tensor, x_old: torch.Tensor,
     bb, ii, sel = entries(active, static)
     if none_left(bb, sel):
         return
-    y, h, v, tgt = s.y[bb, ii], s.heading[bb, ii], s.v[bb, ii], s.target_lane[bb, ii]
+    flat = flat_index(bb, ii, s.x.shape[1])
+    y, h, v, tgt = (take_flat(t, flat) for t in (s.y, s.heading, s.v, s.target_lane))
     y_t = tgt.float() * w
     e_y = y_t - y
     vy_d = (K_Y * e_y).clamp(-VY_MAX_MPS, VY_MAX_MPS)
@@ -89,14 +90,15 @@ def lateral(s: WorldState, road: Road, v_mid: torch.Tensor, x_old: torch.Tensor,
     yaw_max = (v / MIN_TURN_RADIUS_M).clamp(max=YAW_RATE_MAX)
     turn = torch.maximum(torch.minimum(K_HEADING * (heading_d - h), yaw_max), -yaw_max) * DT_S
     h = h + turn
-    vm = v_mid[bb, ii]
-    x = x_old[bb, ii] + vm * torch.cos(h) * DT_S
+    vm = take_flat(v_mid, flat)
+    x = take_flat(x_old, flat) + vm * torch.cos(h) * DT_S
     y = y + vm * torch.sin(h) * DT_S
     settled = ((y - y_t).abs() < SETTLED_M) & (h.abs() < SETTLED_RAD)
     y = torch.where(settled, y_t, y)
     h = torch.where(settled, 0.0, h)
     lane = torch.round(y / w).long().clamp(0, road.num_lanes - 1)
     centred = (lane == tgt) & ((y - y_t).abs() < CENTRED_M)
-    for t, value in ((s.x, x), (s.y, y), (s.heading, h), (s.lane, lane), (s.forced, s.forced[bb, ii] & ~centred)):
-        put(t, bb, ii, value, sel)
+    forced = take_flat(s.forced, flat) & ~centred
+    for t, value in ((s.x, x), (s.y, y), (s.heading, h), (s.lane, lane), (s.forced, forced)):
+        put_flat(t, flat, value, sel)
 

@@ -21,11 +21,16 @@ class LaneTables:
     window_hi: torch.Tensor
     drop_end: tuple[float, ...]  # drop_end_m on the host, so the step never reads it back from a GPU
     lane_width_m: float
+    # every lane everywhere and every boundary open everywhere (two-lane, multi-lane): can_change then
+    # only checks adjacency (known on the host; the other tests would hold for every finite x)
+    unbounded: bool = False
 
     @staticmethod
     def of(road: Road, device) -> "LaneTables":
         t = lambda v: torch.tensor(v, dtype=torch.float32, device=device)  # noqa: E731
         drop = [e if d else math.inf for e, d in zip(road.lane_end_m, road.lane_drop)]
+        unbounded = (all(v == -math.inf for v in road.lane_start_m) and all(v == math.inf for v in road.lane_end_m)
+                     and all(w == (-math.inf, math.inf) for w in road.change_window_m))
         return LaneTables(
             t(road.lane_start_m),
             t(road.lane_end_m),
@@ -34,6 +39,7 @@ class LaneTables:
             t([w[1] for w in road.change_window_m]),
             tuple(drop),
             road.lane_width_m,
+            unbounded,
         )
 
     def can_change(self, x: torch.Tensor, lane: torch.Tensor, to: torch.Tensor, ahead_m=0.0) -> torch.Tensor:
@@ -41,9 +47,12 @@ class LaneTables:
         or (B,); ahead_m: a float or a tensor like x, the distance the change will take)."""
         k = self.start_m.shape[0]
         ok = ((to - lane).abs() == 1) & (to >= 0) & (to < k)
+        if self.unbounded:
+            return ok
         toc = to.clamp(0, k - 1)
         x_end = x + ahead_m
-        ok &= (self.start_m[toc] <= x) & (x_end + 0.5 * VEHICLE_LENGTH_M < self.end_m[toc])
+        # torch.take: a lookup in a small table, without advanced indexing's general path
+        ok &= (self.start_m.take(toc) <= x) & (x_end + 0.5 * VEHICLE_LENGTH_M < self.end_m.take(toc))
         b = torch.minimum(lane, toc).clamp(0, k - 2)
-        return ok & (self.window_lo[b] <= x) & (x_end < self.window_hi[b])
+        return ok & (self.window_lo.take(b) <= x) & (x_end < self.window_hi.take(b))
 

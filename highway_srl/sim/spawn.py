@@ -7,6 +7,7 @@ goes where is static per (scenario, level) and computed once on the host; only t
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -80,29 +81,61 @@ def make_layout(road: Road, level: TrafficLevel, num_vehicles: int) -> Layout:
     )
 
 
+@dataclass(frozen=True)
+class _Constants:
+    """What every spawn of one layout reads, on one device: built once (a spawn runs for the few envs that
+    reset in a step, so building these tensors from Python lists each time was a good part of its cost)."""
+
+    lane: torch.Tensor  # (M,) the layout's lanes
+    side: torch.Tensor  # (M,)
+    slot: torch.Tensor  # (M,)
+    queue: torch.Tensor  # (M,) the queue of each slot (slot // max_rank)
+    ramp: torch.Tensor  # (M,)
+    index: torch.Tensor  # (N,) 0..N-1
+    styles: torch.Tensor  # (4, styles) float32: SVR, DH, ALC (0 / 1), ABP of each style
+    offsets: torch.Tensor  # the adversarial trigger offsets
+
+
+@functools.lru_cache(maxsize=64)
+def _constants(layout: Layout, dev: torch.device) -> _Constants:
+    table = [[float(getattr(s, a)) for s in STYLES]
+             for a in ("speed_violation", "desired_headway_m", "lane_change", "adversarial_prob")]
+    return _Constants(
+        lane=layout.lane.to(dev), side=layout.side.to(dev), slot=layout.slot.to(dev),
+        queue=(layout.slot // layout.max_rank).to(dev), ramp=layout.ramp.to(dev),
+        index=torch.arange(layout.lane.shape[0] + 1, device=dev),
+        styles=torch.tensor(table, dtype=torch.float32, device=dev),
+        offsets=torch.tensor(ADVERSARIAL_TRIGGER_OFFSETS_M, device=dev),
+    )
+
+
+@functools.lru_cache(maxsize=64)
+def _start_lanes(lanes: tuple[int, ...], dev: torch.device) -> torch.Tensor:
+    return torch.tensor(lanes, device=dev)
+
+
 def _sv_x(road: Road, level: TrafficLevel, layout: Layout, u: list[torch.Tensor], ego_x: torch.Tensor,
           ego_lane: torch.Tensor) -> torch.Tensor:
     """(B, M) m: the SVs' positions, queued ahead of and behind the ego in each lane with drawn headways."""
     dev = ego_x.device
     b, m = ego_x.shape[0], layout.lane.shape[0]
-    lay_lane, side = layout.lane.to(dev), layout.side.to(dev)
+    c = _constants(layout, dev)
     h_lo, h_hi = level.headway_m
     spacing = VEHICLE_LENGTH_M + h_lo + (h_hi - h_lo) * u[S_HEADWAY]  # (B, M)
     # distance from the ego along the queue: a running sum per queue (cumsum, not a matrix product, so that
     # an env's numbers do not depend on how many envs share the batch)
-    slot = layout.slot.to(dev)
-    grid = torch.zeros(b, layout.num_queues * layout.max_rank, device=dev)
-    grid[:, slot] = spacing
+    grid = torch.zeros(b, layout.num_queues * layout.max_rank, device=dev).index_copy_(1, c.slot, spacing)
     grid = grid.view(b, layout.num_queues, layout.max_rank)
-    offset = grid.cumsum(2).view(b, -1)[:, slot]
-    first_spacing = grid[:, :, 0].repeat_interleave(layout.max_rank, 1)[:, slot]  # the queue's first spacing
+    offset = grid.cumsum(2).view(b, -1).index_select(1, c.slot)
+    first_spacing = grid[:, :, 0].index_select(1, c.queue)  # the first spacing of each SV's queue
     # lanes other than the ego's get a random phase so their queues do not line up with the ego's
     phase = u[S_LANE_PHASE]  # (B, lanes)
-    sv_lane = lay_lane.expand(b, m)
+    sv_lane = c.lane.expand(b, m)
     in_ego_lane = sv_lane == ego_lane[:, None]
     lane_phase = torch.gather(phase, 1, sv_lane)
+    side = c.side
     shift = torch.where(side > 0, (1 - lane_phase) * first_spacing, lane_phase * first_spacing)
-    shift = torch.where(in_ego_lane | layout.ramp.to(dev), torch.zeros_like(shift), shift)
+    shift = torch.where(in_ego_lane | c.ramp, torch.zeros_like(shift), shift)
     return ego_x[:, None] + side * (offset - shift)
 
 
@@ -119,7 +152,7 @@ def _intents(road: Road, layout: Layout, u: list[torch.Tensor], b: int, m: int, 
     """(B, N) long: ramp SVs merge; in the exit scenario a drawn share of the mainline SVs exit."""
     intent = torch.full((b, m + 1), NO_INTENT, dtype=torch.long, device=dev)
     if road.spec.svs_start_on_ramp:
-        intent[:, 1:] = torch.where(layout.ramp.to(dev), MERGE_INTENT, NO_INTENT).expand(b, m)
+        intent[:, 1:] = torch.where(_constants(layout, dev).ramp, MERGE_INTENT, NO_INTENT).expand(b, m)
     elif road.spec.svs_may_exit:
         exits = u[S_INTENT] < EXIT_INTENT_PROB
         intent[:, 1:] = torch.where(exits, EXIT_INTENT, NO_INTENT)
@@ -142,20 +175,21 @@ def spawn(
              S_OFFSET: n, S_PHASE: None}  # None: one draw per env
     u = rng.uniforms(rng.episode_key(seed, episode), 0, tuple(width[s] for s in range(len(width))))
 
-    starts = torch.tensor(road.ego_start_lanes, device=dev)
+    c = _constants(layout, dev)
+    starts = _start_lanes(road.ego_start_lanes, dev)
     ego_lane = starts[rng.to_int(u[S_EGO_LANE], len(road.ego_start_lanes))]
     ego_x = torch.full((b,), road.ego_start_x_m, device=dev)
     lo, hi = SV_INIT_SPEED_MPS
     speed = lo + (hi - lo) * u[S_SPEED]  # (B, N), column 0 for the ego
     x = torch.cat([ego_x[:, None], _sv_x(road, level, layout, u, ego_x, ego_lane)], 1)
-    lane = torch.cat([ego_lane[:, None], layout.lane.to(dev).expand(b, m)], 1)
+    lane = torch.cat([ego_lane[:, None], c.lane.expand(b, m)], 1)
     y = lane.to(torch.float32) * road.lane_width_m
 
     sty = _styles(u, style, b, m, dev)
-    table = lambda attr: torch.tensor([getattr(s, attr) for s in STYLES], device=dev)[sty]  # noqa: E731
-    v0 = (1.0 + table("speed_violation").float()) * V_MAX_MPS
+    violation, headway, lane_change, adversarial_prob = c.styles[:, sty]  # (B, N) each, one lookup
+    v0 = (1.0 + violation) * V_MAX_MPS
     v0[:, 0] = V_MAX_MPS
-    offsets = torch.tensor(ADVERSARIAL_TRIGGER_OFFSETS_M, device=dev)
+    offsets = c.offsets
     zeros_b = torch.zeros(b, n, dtype=torch.bool, device=dev)
     return WorldState(
         x=x,
@@ -166,16 +200,16 @@ def spawn(
         target_lane=lane.clone(),
         style=sty,
         v0=v0,
-        s0=table("desired_headway_m").float(),
-        lane_change=table("lane_change").bool(),
-        adversarial_prob=table("adversarial_prob").float(),
+        s0=headway,
+        lane_change=lane_change.bool(),
+        adversarial_prob=adversarial_prob,
         intent=_intents(road, layout, u, b, m, dev),
         trigger_offset=offsets[rng.to_int(u[S_OFFSET], len(offsets))],
         trigger_used=zeros_b.clone(),
         forced=zeros_b.clone(),
         # vehicle n decides at steps t with (t + phase) % 8 == 0; the per-episode offset is drawn, the
         # stride by index spreads the decisions (see dynamics.decision_slots)
-        phase=(rng.to_int(u[S_PHASE], 8)[:, None] + torch.arange(n, device=dev)) % 8,
+        phase=(rng.to_int(u[S_PHASE], 8)[:, None] + c.index) % 8,
         order=sorted_order(x),
         seed=seed.clone(),
         episode=episode.clone(),

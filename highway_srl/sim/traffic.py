@@ -14,6 +14,7 @@ from __future__ import annotations
 import torch
 
 from highway_srl.constants import VEHICLE_LENGTH_M, VEHICLE_WIDTH_M
+from highway_srl.sim.selection import TAKE_MAX, take_flat  # noqa: F401  (re-exported)
 
 # IDM parameters shared by every style (the style sets the jam distance s0 = DH and the desired speed).
 IDM_ACCEL_MPS2 = 1.5  # a: maximum acceleration
@@ -126,20 +127,6 @@ def followers_of(behind_keys: torch.Tensor, rank: torch.Tensor, k, b, i) -> torc
     # general path on the CPU
     r = take_flat(rank, b * (n1 - 1) + i)
     return (take_flat(behind_keys, (k * n_envs + b) * n1 + r) & (_KEY - 1)).long()
-
-
-# Below this many indices torch.take (one call) beats the three of a flat index_select; above it
-# index_select's gather loop wins (1.4x at 10^5 indices). `python scripts/cpu_ops.py costs`: 1.2 vs 5.4 us at
-# 26 indices, about even at 5,000 (docs/benchmarks.md, session 12).
-TAKE_MAX = 4096
-
-
-def take_flat(t: torch.Tensor, flat: torch.Tensor) -> torch.Tensor:
-    """t's elements at flat (row-major) indices of any shape (faster than advanced indexing with index
-    pairs or triples)."""
-    if flat.numel() <= TAKE_MAX:
-        return torch.take(t, flat)
-    return t.reshape(-1).index_select(0, flat.reshape(-1)).view(flat.shape)
 
 
 def inverse_order(order: torch.Tensor) -> torch.Tensor:

@@ -16,7 +16,7 @@ from highway_srl.constants import VEHICLE_LENGTH_M
 from highway_srl.sim.collision import CONTACT_GAP_M, front_x_in_band
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.road import Road
-from highway_srl.sim.selection import entries, narrow, none_left, put
+from highway_srl.sim.selection import entries, flat_index, narrow, none_left, put, put_flat
 from highway_srl.sim.state import EXIT_INTENT, MERGE_INTENT, NO_INTENT, WorldState
 from highway_srl.sim.traffic import (
     ABORT_BRAKE_MPS2,
@@ -158,25 +158,30 @@ def abort_unsafe_changes(s: WorldState, road: Road, nb: Neighbours, accel: torch
     when the change turned unsafe: too little room, or it or its new follower would have to brake hard
     (accel: the IDM accelerations of this step, in which the new follower already reacts to the changer).
     A committed change goes on: the new follower sees the changer in its lane and yields."""
+    b_envs, n = s.x.shape
     bb, ii, sel = entries(s.target_lane != s.lane, static)
-    keep = (ii > 0) & ~s.forced[bb, ii]
-    keep &= (s.y[bb, ii] - s.lane[bb, ii].float() * road.lane_width_m).abs() < COMMITTED_M
-    sel, bb, ii = narrow(sel, keep, bb, ii)
+    flat = flat_index(bb, ii, n)
+    y, lane, forced = take_flat(s.y, flat), take_flat(s.lane, flat), take_flat(s.forced, flat)
+    keep = (ii > 0) & ~forced & ((y - lane.float() * road.lane_width_m).abs() < COMMITTED_M)
+    sel, bb, ii, flat, lane = narrow(sel, keep, bb, ii, flat, lane)
     if none_left(bb, sel):
         return
-    tk = s.target_lane[bb, ii]
-    nl, nf = nb.leader[tk, bb, ii], nb.follower(tk, bb, ii)
-    x, v = s.x[bb, ii], s.v[bb, ii]
-    g_front = nb.x_pad[bb, nl] - x - VEHICLE_LENGTH_M
-    nf_x = torch.where(nf < s.x.shape[1], nb.x_pad[bb, nf], -FAR_M)
+    tk = take_flat(s.target_lane, flat)
+    nl, nf = take_flat(nb.leader, tk * (b_envs * n) + flat), nb.follower(tk, bb, ii)
+    x, v = take_flat(s.x, flat), take_flat(s.v, flat)
+    row = bb * (n + 1)
+    nl_x, nf_x = take_flat(nb.x_pad, row + nl), take_flat(nb.x_pad, row + nf)
+    g_front = nl_x - x - VEHICLE_LENGTH_M
+    nf_x = torch.where(nf < n, nf_x, -FAR_M)
     g_back = x - nf_x - VEHICLE_LENGTH_M
-    a_target = idm_accel_fast(idm_free_term(v, s.v0[bb, ii]), v, s.s0[bb, ii], g_front, nb.v_pad[bb, nl])
-    accel_pad = pad(accel, 0.0)
+    free = idm_free_term(v, take_flat(s.v0, flat))
+    a_target = idm_accel_fast(free, v, take_flat(s.s0, flat), g_front, take_flat(nb.v_pad, row + nl))
     nf_limit = torch.where(nf == 0, -ABORT_EGO_BRAKE_MPS2, -ABORT_BRAKE_MPS2)
     unsafe = (g_front < ABORT_GAP_M) | (g_back < ABORT_GAP_M) | (a_target < -ABORT_BRAKE_MPS2)
-    unsafe |= accel_pad[bb, nf] < nf_limit
-    sel, bb, ii = narrow(sel, unsafe, bb, ii)
-    put(s.target_lane, bb, ii, s.lane[bb, ii], sel)
+    # the new follower's acceleration (none: 0, never below the limits)
+    unsafe |= torch.where(nf < n, take_flat(accel, bb * n + nf.clamp(max=n - 1)), 0.0) < nf_limit
+    sel, flat, lane = narrow(sel, unsafe, flat, lane)
+    put_flat(s.target_lane, flat, lane, sel)
 
 
 def _deciders(s: WorldState, road: Road):
@@ -224,9 +229,9 @@ def mobil_lane_changes(s: WorldState, road: Road, tables: LaneTables, nb: Neighb
     bb, jj, sel = entries(decide, static)
     if none_left(bb, sel):
         return
-    ii = idx[bb, jj]
-    flat1 = bb * n + ii
-    lane1, intent1, merge1 = lane[bb, jj], intent[bb, jj], on_ramp_merge[bb, jj]
+    flat_j = flat_index(bb, jj, idx.shape[1])
+    ii, lane1, intent1, merge1 = (take_flat(t, flat_j) for t in (idx, lane, intent, on_ramp_merge))
+    flat1 = flat_index(bb, ii, n)
     # both directions at once: row 0 of the (2, M) candidates goes left (-1), row 1 right (+1); what does not
     # depend on the direction stays (M,) and broadcasts
     d = torch.tensor([[-1], [1]], device=lane1.device)
@@ -239,7 +244,7 @@ def mobil_lane_changes(s: WorldState, road: Road, tables: LaneTables, nb: Neighb
     row = bb * (n + 1)
     nl_x, nl_v = take_flat(nb.x_pad, row + nl), take_flat(nb.v_pad, row + nl)
     g_front = nl_x - x - VEHICLE_LENGTH_M
-    wall = tables.drop_end_m[toc] - x - 0.5 * VEHICLE_LENGTH_M
+    wall = tables.drop_end_m.take(toc) - x - 0.5 * VEHICLE_LENGTH_M
     use_wall = wall < g_front
     a_new = idm_accel_fast(idm_free_term(v, v0), v, s0, torch.minimum(wall, g_front), torch.where(use_wall, 0.0, nl_v))
     has_nf = nf < n
