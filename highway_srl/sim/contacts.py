@@ -76,6 +76,8 @@ def ego_collision(s: WorldState, road: Road, tables: LaneTables, nb: Neighbours,
     near = ((xj - s.x[:, 0]).abs() < CONTACT_REACH_M) & ((yj - s.y[:, 0]).abs() < CONTACT_REACH_M) & (j < n)
     if static or s.x.device.type != "cpu":  # no host read: the dense test under the mask
         hit = (boxes_overlap(s.x[:, 0], s.y[:, 0], s.heading[:, 0], xj, yj, take_flat(s.heading, flat)) & near).any(0)
+    elif not bool(near.any()):  # on the CPU a branch is free, and at small batches usually taken
+        hit = torch.zeros_like(near[0])
     else:
         # the box test only for the pairs within reach (a few in a batch: contacts are rare); the same
         # formulas on the same values as the static form's dense test

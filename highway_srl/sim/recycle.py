@@ -144,7 +144,7 @@ def recycle(s: WorldState, road: Road, layout: Layout, level: TrafficLevel, stat
         envs = None
         sub = lambda t: t  # noqa: E731
     else:
-        envs = (to_back | to_front).any(1).nonzero().squeeze(1)
+        envs = (to_back | to_front).sum(1).nonzero().squeeze(1)  # sum: any(1) is 3x slower on the CPU
         if envs.numel() == 0:
             return
         sub = lambda t: t.index_select(0, envs)  # noqa: E731

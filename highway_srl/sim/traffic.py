@@ -68,9 +68,10 @@ def sorted_order(x: torch.Tensor, order: torch.Tensor | None = None, static: boo
     if order is None or static:
         return torch.sort(x, dim=1, stable=True).indices
     xs = x.gather(1, order)
-    d = xs[:, 1:] - xs[:, :-1]
-    broken = (d < 0) | ((d == 0) & (order[:, 1:] < order[:, :-1]))
-    rows = broken.any(1).nonzero().squeeze(1)
+    # a row whose cached order has a pair out of order, or level (x equal: rare; the stable sort then gives
+    # the order that row already has, ties by index): sorted again. Counted with sum, not any: any's
+    # reduction along a short row is 3x slower on the CPU.
+    rows = ((xs[:, 1:] - xs[:, :-1]) <= 0).sum(1).nonzero().squeeze(1)
     if rows.numel() == 0:
         return order
     order = order.clone()
