@@ -58,3 +58,19 @@ def test_processes_timing_times_every_slice_and_the_hand_over():
     assert out["beyond_slowest_ms"] >= 0 and out["env_steps_per_s"] > 0
     bad = _run("scripts/processes_timing.py", "--envs", "2", "--processes", "3")
     assert bad.returncode == 2 and "Traceback" not in bad.stderr and "2 <= --processes <= --envs" in bad.stderr
+
+
+def test_step_phases_times_the_step_by_function():
+    done = _run("scripts/step_phases.py", "--envs", "4", "--steps", "3", "--warmup", "1")
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    parts = out["ms_per_step_by_function"]
+    assert {"find_neighbours", "mobil_lane_changes", "recycle", "ego_collision"} <= set(parts)
+    # each function's own time: the parts add up to the step, less the loop around it
+    assert 0.5 * out["ms_per_step"] < sum(parts.values()) <= out["ms_per_step"] * 1.01
+
+
+def test_step_phases_bad_input_is_one_line():
+    done = _run("scripts/step_phases.py", "--envs", "0")
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert done.stderr.strip().splitlines()[-1].startswith("step_phases.py: error:")
