@@ -6,9 +6,11 @@ GPU, a graph break for torch.compile). The static step visits every (env, vehicl
 carries the selection as a mask. Both run the same formulas on the same elements; these helpers are the
 only place where the two differ. `sel` is None in the compact form and a (M,) bool mask in the static one.
 
-The entries' values are read and written through flat (row-major) indices, env * C + column, with
-index_select / take and index_copy_: on the CPU two-tensor advanced indexing (t[bb, ii]) takes a general
-path that costs 2-4x as much at a few thousand entries (docs/benchmarks.md, session 16).
+Where the selections are large (lateral control, MOBIL, the aborts: thousands of entries at 2,048 envs)
+their values are read and written through flat (row-major) indices, env * C + column (flat_index), with
+take_flat and put_flat (index_select / take, index_copy_): on the CPU two-tensor advanced indexing
+(t[bb, ii], put) takes a general path that costs 2-4x as much there (docs/benchmarks.md, session 16). The
+rarer rules (lane ends, cooperative merging, the adversary) keep the plainer t[bb, ii].
 """
 
 from __future__ import annotations
