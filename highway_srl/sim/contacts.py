@@ -10,7 +10,7 @@ from highway_srl.sim.collision import CONTACT_REACH_M, boxes_overlap, front_x_in
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.road import Road
 from highway_srl.sim.state import WorldState
-from highway_srl.sim.traffic import take_flat
+from highway_srl.sim.selection import take_flat
 from highway_srl.sim.traffic_model import Neighbours
 
 EDGE_TOLERANCE_M = 0.5  # how far the ego's side may reach past the road's outer edge before it is a collision
