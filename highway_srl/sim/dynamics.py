@@ -55,14 +55,36 @@ def advance(s: WorldState, road: Road, tables: LaneTables, layout: Layout, targe
         adversary.safe_distance_cut_ins(s, tables, nb, static)
     ego_control(s, tables, target_lane, target_speed, accel)
 
-    v_new = (s.v + accel * DT_S).clamp(min=0.0)
-    v_new[:, 0] = v_new[:, 0].clamp(max=V_MAX_MPS)
-    v_mid = 0.5 * (s.v + v_new)
+    v_new, v_mid = integrate_speed(s.v, accel, DT_S, V_MAX_MPS)
     x_old = s.x.clone()
     s.x.add_(v_mid * DT_S)  # along the lane; corrected below for the few cars that are turned
     lateral(s, road, v_mid, x_old, static)
     s.v.copy_(v_new)
     return sv_contacts(s, near, nb.leader, static), nb
+
+
+def integrate_speed(v: torch.Tensor, accel: torch.Tensor, dt: float, ego_v_max: float
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Exact kinematics of a constant acceleration over one step, with the speed held at its bounds.
+
+    v, accel (B, N): speeds (m/s) and accelerations (m/s^2), column 0 the ego. Returns the speeds at the end
+    of the step (>= 0; the ego's <= ego_v_max) and the mean speed over the step (distance / dt). A car that
+    reaches 0 within the step stands still for the rest of it: it covers v^2 / (2 |a|), not the trapezoid
+    to 0 (which overshoots: 2.7 cm instead of 1.6 cm from 0.44 m/s at -6 m/s^2, enough to creep into a
+    standing leader). Likewise the ego that reaches its limit within the step drives on at the limit."""
+    v_free = v + accel * dt
+    v_new = v_free.clamp(min=0.0)
+    v_new[:, 0] = v_new[:, 0].clamp(max=ego_v_max)
+    v_mean = 0.5 * (v + v_new)
+    # stopping: accel < -v/dt <= 0 there, so the divisor is positive; the clamp only keeps the unused
+    # entries of torch.where finite
+    stop_mean = v * v / (-2.0 * accel * dt).clamp(min=1e-9)
+    v_mean = torch.where(v_free < 0.0, stop_mean, v_mean)
+    v0, a0 = v[:, 0], accel[:, 0]
+    t_cap = ((ego_v_max - v0) / a0.clamp(min=1e-9)).clamp(0.0, dt)  # time to reach the limit
+    capped_mean = (v0 * t_cap + 0.5 * a0 * t_cap * t_cap + ego_v_max * (dt - t_cap)) / dt
+    v_mean[:, 0] = torch.where(v_free[:, 0] > ego_v_max, capped_mean, v_mean[:, 0])
+    return v_new, v_mean
 
 
 def lateral(s: WorldState, road: Road, v_mid: torch.Tensor, x_old: torch.Tensor, static: bool = False) -> None:
