@@ -1,14 +1,14 @@
-"""Small CPU facts behind the changes of sessions 12 and 14, measured: what single operations cost, and which
-operations' last bits depend on the machine's MKL.
+"""Small CPU facts behind choices in sim/selection.py and agents/dqn.py, measured: what single operations cost,
+and which operations' last bits depend on the machine's MKL.
 
     OMP_NUM_THREADS=1 python scripts/cpu_ops.py costs
     for e in X=1 MKL_ENABLE_INSTRUCTIONS=SSE4_2 MKL_ENABLE_INSTRUCTIONS=AVX2 MKL_CBWR=COMPATIBLE; do
         env $e python scripts/cpu_ops.py hashes; done
 
 costs: microseconds per call (best of 5 timings) of `take_flat`'s two forms at growing index counts (why it
-switches to torch.take below sim.traffic.TAKE_MAX), and of the bookkeeping the gathered DQN update did per
+switches to torch.take below sim.selection.TAKE_MAX), and of the bookkeeping the gathered DQN update did per
 member row of 76,548 floats (index_select, index_copy_, torch.where; why the CPU update works on rows), and
-the two forms of ReLU's backward and of Adam on a row that the compact update chooses between (session 14).
+the two forms of ReLU's backward and of Adam on a row that the compact update chooses between.
 hashes: an md5 prefix of each operation's output on 10^5 fixed floats; run it under different MKL settings
 (as above) and compare: the operations whose hash moves take their last bits from MKL's code path, which MKL
 picks by CPU model (why the pins run under MKL_CBWR=COMPATIBLE: tests/pins/pin_data.py). One JSON object.
@@ -55,7 +55,7 @@ def costs() -> dict:
                "index_copy_": best_us(lambda: flat.index_copy_(0, idx, row)),
                "torch.where": best_us(lambda: torch.where(no, row, row)),
                "lerp_ on the row view": best_us(lambda: flat[3].lerp_(row[0], 0.1))}
-    # the compact update's two choices of session 14 (agents/dqn.py): ReLU's backward on a batch's (1, 256, 256)
+    # the compact update's two choices (agents/dqn.py): ReLU's backward on a batch's (1, 256, 256)
     # hidden layer, and Adam on one member's row, elementwise (eight passes) or torch's fused kernel (one); warm
     # here, where in training the rows come from memory (the training step's figures: docs/benchmarks.md)
     grad, hidden = torch.randn(1, 256, 256, generator=gen), torch.randn(1, 256, 256, generator=gen).relu()

@@ -1,4 +1,4 @@
-"""The device check of issue 13: one call that tests and benches the GPU and writes one JSON file.
+"""The device check: one call that tests and benches the GPU and writes one JSON file.
 
     python scripts/device_check.py                 # on a CUDA machine, under 8 minutes on an H100
     python scripts/device_check.py --cpu-smoke     # the same parts at toy sizes on the CPU (the test suite runs it)

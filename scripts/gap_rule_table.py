@@ -1,11 +1,11 @@
-"""The built-in ego drivers' gap rule against the 6 m rule the backends' driver had before issue 11.
+"""The built-in ego drivers' gap rule (2 m + speed terms) against a 6 m rule and no gap check at all.
 
     OMP_NUM_THREADS=1 .venv/bin/python scripts/gap_rule_table.py --what world        # about 3 + 5 min
     OMP_NUM_THREADS=1 .venv/bin/python scripts/gap_rule_table.py --what rule-based   # about 1.5 min a rule
     OMP_NUM_THREADS=1 .venv/bin/python scripts/gap_rule_table.py --what backends     # about 10 min a rule
 
-Each part runs once per rule (--rules, default "2m,6m"; "none" = no gap check, the rule-based method before
-issue 11) by putting that rule in the place of sim/policies.room_to_change and prints one JSON object:
+Each part runs once per rule (--rules, default "2m,6m"; "none" = no gap check at
+all) by putting that rule in the place of sim/policies.room_to_change and prints one JSON object:
   world       idm_ego and idm_ego_backend on World, 200 envs' first episodes of merge / exit x A / C / F x
               nominal (seeds 5000+) / adversarial (6000+): success, collision and failure rates in %
   rule-based  the rule-based method's evaluation (evaluate_run, 200 episodes per level A / C / F, nominal

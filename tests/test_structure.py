@@ -2,6 +2,7 @@
 layers, no private name (_x) is imported from another module, and no function is over 60 lines."""
 
 import ast
+import re
 from pathlib import Path
 
 import highway_srl
@@ -110,3 +111,55 @@ def test_no_function_is_longer_than_60_lines():
                 if lines > MAX_FUNCTION_LINES:
                     long.append(f"{name}.{node.name}: {lines} lines")
     assert long == []
+
+
+# ---------------------------------------------------------------------------- the documents and the tool shelf
+ROOT = Path(__file__).resolve().parents[1]
+LAYOUT_ROW = re.compile(r"^\| [^|]+ \| (.+) \|$")
+LAYOUT_PART = re.compile(r"`([\w/]+\.py)`: ([^;]+)")
+NAME = re.compile(r"`([A-Za-z_][\w.]*)`")
+
+
+def _lines(relative: str) -> int:
+    return len((ROOT / relative).read_text().splitlines())
+
+
+def test_the_readme_and_the_benchmarks_stay_short():
+    assert _lines("README.md") <= 200
+    assert _lines("docs/benchmarks.md") <= 150
+
+
+def test_scripts_readme_names_every_script():
+    listed = (ROOT / "scripts" / "README.md").read_text()
+    missing = [p.name for p in sorted((ROOT / "scripts").iterdir())
+               if p.is_file() and p.name != "README.md" and f"`{p.name}`" not in listed]
+    assert not missing, f"scripts/README.md does not list {missing}"
+
+
+def _layout_table() -> list[str]:
+    text = (ROOT / "README.md").read_text().split("## Layout", 1)[1].split("\n## ", 1)[0]
+    return [m.group(1) for line in text.splitlines() if (m := LAYOUT_ROW.match(line)) and "`" in line]
+
+
+def _defined(source: Path) -> set[str]:
+    """Names a file defines: its functions, classes and methods, and the names it assigns at any depth."""
+    names = set()
+    for node in ast.walk(ast.parse(source.read_text())):
+        if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            names |= {t.id for t in targets if isinstance(t, ast.Name)}
+    return names
+
+
+def test_every_file_and_function_in_the_readmes_layout_exists():
+    rows = _layout_table()
+    assert len(rows) >= 12, "README's Layout has lost its map of the paper's concepts"
+    for row in rows:
+        for path, names in LAYOUT_PART.findall(row):
+            source = PACKAGE / path
+            assert source.is_file(), f"README's Layout names highway_srl/{path}, which does not exist"
+            defined = _defined(source)
+            for name in NAME.findall(names):
+                assert set(name.split(".")) <= defined, f"README's Layout names {name} in {path}, not defined there"
