@@ -8,8 +8,8 @@ Why: a paper-budget job batches its seeds in one process for hours; a machine th
 finishes a chunk of three seeds where it would not finish ten. A job is the same job across chunks by its id
 (profile, scene, variant); its merged result has the union of the seeds of the chunks where it finished:
 metrics.json's and eval.json's per-seed entries side by side, the pooled numbers recomputed over all of them
-(Wilson for rates, the pooled t interval for means). A seed in two chunks of one job is an error, never
-counted twice. Everything is read from the chunks' files in a fixed order, so the merged report is the same
+(Wilson for rates, the pooled t interval for means). A seed finished in two chunks of one job is an error,
+never counted twice. Everything is read from the chunks' files in a fixed order, so the merged report is the same
 bytes each time it is written.
 """
 
@@ -99,8 +99,10 @@ def merge(parts: list[Results], root: Path) -> Results:
 
 
 def _check_seeds(job_id: str, entries: list[tuple[str, Result]]) -> None:
+    """A seed finished in two chunks of one job is an error (a chunk where the job has not finished holds no
+    result of its seeds, so it may overlap: it is listed as not done)."""
     owner: dict[int, str] = {}
-    for name, res in entries:
+    for name, res in [(n, r) for n, r in entries if r.done]:
         for seed in res.job.seeds:
             if seed in owner:
                 raise ValueError(f"seed {seed} of job {job_id} is in two chunks, {owner[seed]!r} and {name!r}; "
