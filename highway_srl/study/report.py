@@ -133,7 +133,7 @@ def build_blocks(root: Path, results: T.Results, tables: dict[str, T.Table], fig
                             f"additions to the mappings on (docs/paper-notes.md, 'Profiles: paper vs safe'); run "
                             f"folders under `runs/{other.profile}/`. The claims above are judged on the paper "
                             "profile only."))
-        for name in (*T.REPORT_TABLES, "training_pareto"):
+        for name in (*T.REPORT_TABLES, "training_pareto", "seed_intervals", "seeds"):
             blocks += table_blocks(tables[f"{name}_{other.profile}"], "tables")
     if "side_by_side" in tables:
         blocks += table_blocks(tables["side_by_side"], "tables")
@@ -213,12 +213,22 @@ def render_html(blocks: list[tuple], root: Path) -> str:
             f"<style>{style}</style></head><body>" + "\n".join(body) + "</body></html>\n")
 
 
+def seed_tables(results: T.Results) -> dict[str, T.Table]:
+    """The seed-as-unit tables of the reproduction, then of each other profile as NAME_PROFILE."""
+    out = {"seed_intervals": ST.intervals_table(results), "seeds": ST.seeds_table(results)}
+    for other in results.beyond():
+        for t in (ST.intervals_table(other), ST.seeds_table(other)):
+            t.name, t.title = f"{t.name}_{other.profile}", f"Beyond the paper ({other.profile} profile): {t.title}"
+            out[t.name] = t
+    return out
+
+
 def write_report(root: str | Path) -> Path:
     """Tables, figures, report.md and report.html of the study folder `root`; returns report.md's path."""
     root = Path(root)
     results = chunks.load_study(root)
     tables = T.all_tables(results)
-    tables["seed_intervals"], tables["seeds"] = ST.intervals_table(results), ST.seeds_table(results)
+    tables.update(seed_tables(results))
     if results.beyond():  # every printed cell: paper | ours (paper profile) | ours (each other profile)
         tables["side_by_side"] = side_by_side(results)
     for t in tables.values():

@@ -111,7 +111,7 @@ def test_a_study_of_both_profiles_judges_the_claims_on_the_paper_profile_and_rep
     report = (root / "report.md").read_text()
     assert "Beyond the paper: the same study under the `safe` control profile" in report
     assert "MoE-RM-SRL trains without collisions" in report and "**not confirmed**" in report
-    for name in ("table5", "table6", "group1_deployment"):
+    for name in ("table5", "table6", "group1_deployment", "seed_intervals", "seeds"):
         assert (root / "tables" / f"{name}.csv").exists() and (root / "tables" / f"{name}_safe.csv").exists()
     paper_t5 = (root / "tables" / "table5.csv").read_text()
     safe_t5 = (root / "tables" / "table5_safe.csv").read_text()
