@@ -60,6 +60,8 @@ def summary(res: Result | None, level: str = TRAIN_TRAFFIC) -> dict:
         out[name] = S.t_interval(s[name] for s in train.values())
     for key in DEPLOY_KEYS:
         out[key] = S.t_interval(s.get(key) for s in deploy.values())
+    for key in ("T_c", *RATES):
+        out[key] = S.clip_rate(out[key])
     for key in RATES:
         have = [s for s in deploy.values() if s.get(key) is not None]
         out[f"{key}_pooled"] = (S.wilson(sum(round(s[key] * s["episodes"]) for s in have),
@@ -142,6 +144,7 @@ def intervals_table(results: Results) -> Table:
     return Table("seed_intervals", "Every finished job with the seed as the unit: means over seeds [95% interval]",
                  cols, rows, display=Table("", "", shown, rows),
                  notes=["Seeds [95% t]: the mean of the per-seed values with its Student t interval over seeds "
-                        "(n = seeds; '(n=1)': one seed, no interval). Pooled episodes [95% Wilson]: all seeds' "
+                        "(n = seeds; '(n=1)': one seed, no interval; a rate's interval cut to [0, 1]). Pooled "
+                        "episodes [95% Wilson]: all seeds' "
                         f"episodes as one sample, which ignores the spread between runs. Deployment at level "
                         f"{TRAIN_TRAFFIC}."])

@@ -45,6 +45,14 @@ def t_interval(values, confidence: float = CONFIDENCE) -> Interval | None:
     return Interval(mean, mean - half, mean + half, len(vals))
 
 
+def clip_rate(iv: Interval | None) -> Interval | None:
+    """A rate's t interval cut to [0, 1]: a t interval is symmetric, a rate is not (seeds at 1.00, 1.00 and
+    0.98 give an upper bound above 1, which no rate reaches)."""
+    if iv is None or iv.low is None:
+        return iv
+    return Interval(iv.mean, max(0.0, iv.low), min(1.0, iv.high), iv.n)
+
+
 def wilson(successes: int, n: int, confidence: float = CONFIDENCE) -> Interval:
     """The pooled rate successes / n with its Wilson score interval (episodes as the unit)."""
     e = wilson_interval(successes, n, confidence)

@@ -24,6 +24,8 @@ def test_t_interval_of_a_small_known_sample():
     one = S.t_interval([0.7, None])
     assert (one.mean, one.low, one.high, one.n) == (0.7, None, None, 1)
     assert S.t_interval([None]) is None
+    rate = S.clip_rate(S.t_interval([1.0, 1.0, 0.98]))  # t: 0.993 [0.9646, 1.0220], a rate stops at 1
+    assert rate.high == 1.0 and rate.low == pytest.approx(0.9646, abs=1e-4)
 
 
 @pytest.mark.parametrize("k, n, low, high", [
