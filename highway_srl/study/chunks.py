@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from highway_srl.constants import TRAFFIC_LEVELS
-from highway_srl.experiments.runs import read_json, read_jsonl
+from highway_srl.experiments.runs import read_jsonl
 from highway_srl.study import stats as S
 from highway_srl.study.jobs import Job
 from highway_srl.study.tables import Result, Results, load_results

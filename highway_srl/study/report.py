@@ -20,7 +20,7 @@ from highway_srl.study import tables as T
 from highway_srl.study.side_by_side import side_by_side
 from highway_srl.experiments.runs import provenance
 from highway_srl.study.jobs import BUDGETS, Job
-from highway_srl.study.verdicts import Check, Claim, claims, dominates  # noqa: F401  (the report's API)
+from highway_srl.study.verdicts import claims
 
 # --------------------------------------------------------------------------------------------- the report
 

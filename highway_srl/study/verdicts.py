@@ -23,7 +23,7 @@ from highway_srl.study import stats as S
 from highway_srl.study import tables as T
 from highway_srl.study.paper_numbers import TABLE5
 from highway_srl.study.jobs import (ABLATION_SCENE, ABLATIONS, GROUP1_METHODS, METHOD_LABELS, OURS, SCENES,
-                                    TABLE5_METHODS, TABLE5_SCENES, TRAIN_TRAFFIC)
+                                    TABLE5_METHODS, TABLE5_SCENES)
 
 COLLISION_FREE = 0.9995  # T_c that prints as 1.000, the paper's value for MoE-RM-SRL in every scene
 HIGH_SUCCESS = 0.5  # "high" success: most episodes reach the merge's end or the off-ramp

@@ -10,7 +10,8 @@ import shutil
 import pytest
 import study_fakes as fakes
 
-from highway_srl.study.report import Check, Claim, claims, dominates, write_report
+from highway_srl.study.report import write_report
+from highway_srl.study.verdicts import Check, Claim, claims, dominates
 from highway_srl.study.runner import reproduce
 from highway_srl.study.jobs import OURS
 from highway_srl.study.tables import load_results
