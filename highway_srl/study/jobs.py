@@ -96,8 +96,8 @@ BUDGETS: dict[str, Budget] = {
     "quick": Budget(
         "quick", steps=40_000, envs=8, seeds=(0, 1), learning_starts=1_000, batch_size=64, replay_ratio=0.25,
         eval_episodes=20, group1_levels=tuple(TRAFFIC_LEVELS), checkpoint_every=8_000, profiles=("paper", "safe"),
-        expected_cost="about 71 minutes on a 2-core CPU with all 8 methods (docs/results.md; 4e4 steps x 2 "
-                      "seeds per run, 20 episodes per seed and level); "
+        expected_cost="about 4 h on a 2-core CPU for its 86 jobs, both profiles (docs/results/quick-2026-11-28; "
+                      "4e4 steps x 2 seeds per run, 20 episodes per seed and level); "
                       "enough for MoE-RM-SRL's return to rise, not for the paper's numbers"),
     "paper": Budget(
         "paper", steps=500_000, envs=16, seeds=tuple(range(10)), learning_starts=1_000, batch_size=256,

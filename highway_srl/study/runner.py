@@ -375,13 +375,23 @@ def report_only(out: str | Path, budget: str | None = None) -> Path:
     report counts them) while it runs in another process or after a stop. study.json is only read, never
     written, so a running study's record is not disturbed; its own report, at its end, replaces this one.
     budget: if given, it must be the study's (the same command line as the study's, plus --report-only).
+    A folder without study.json whose subfolders are studies of one budget differing only in seeds (seed
+    chunks, chunks.py) gets one report over the union of their finished jobs.
     """
     from highway_srl.study.report import write_report
 
+    from highway_srl.study.chunks import check_chunks, chunk_folders
+    from highway_srl.study.tables import load_results
+
     out = Path(out)
+    parts = chunk_folders(out) if not (out / STUDY_FILE).exists() else []
+    if parts:  # a study run in seed chunks: one report over them all
+        check_chunks([load_results(p) for p in parts], budget)
+        return write_report(out)
     state = open_state(out, STUDY_FILE, "study")
     if state is None:
-        raise ValueError(f"--out {str(out)!r} holds no study (study.json): start one with reproduce --budget ...")
+        raise ValueError(f"--out {str(out)!r} holds no study (study.json) and no seed chunks (subfolders with "
+                         "one): start one with reproduce --budget ...")
     if budget is not None and state.get("budget") != budget:
         raise ValueError(f"--out {str(out)!r} holds a study of budget {state.get('budget')!r}, not {budget!r}")
     return write_report(out)

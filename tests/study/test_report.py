@@ -1,4 +1,7 @@
-"""The report's verdicts on the paper's claims follow the numbers: they flip when the numbers flip."""
+"""The report's verdicts on the paper's claims follow the numbers: they flip when the numbers flip.
+
+The study has three seeds a job (identical numbers each): the verdicts take the seed as the unit, and an
+ablation's difference is judged by a bootstrap over seeds, which needs two seeds a side."""
 
 from __future__ import annotations
 
@@ -7,7 +10,8 @@ import shutil
 import pytest
 import study_fakes as fakes
 
-from highway_srl.study.report import Check, Claim, claims, dominates, write_report
+from highway_srl.study.report import write_report
+from highway_srl.study.verdicts import Check, Claim, claims, dominates
 from highway_srl.study.runner import reproduce
 from highway_srl.study.jobs import OURS
 from highway_srl.study.tables import load_results
@@ -19,7 +23,7 @@ BETTER = {"T_c": 1.0, "rise": 0.1, "C_r": 1.0, "speed": 9.5, "R_r": 300.0, "R_s"
 @pytest.fixture
 def study(tmp_path):
     root = tmp_path / "study"
-    reproduce("smoke", root, jobs=1, work=fakes.fake_work, log=lambda s: None, report=False)
+    reproduce("smoke", root, jobs=1, work=fakes.fake_work, seeds=(0, 1, 2), log=lambda s: None, report=False)
     return root
 
 
@@ -38,16 +42,16 @@ def _verdicts(root) -> dict[str, str]:
 
 def test_every_claim_is_confirmed_when_ours_wins_everywhere(study):
     assert _verdicts(study) == {"collision_free_training": "confirmed", "pareto": "confirmed",
-                                "exit_success": "confirmed", "ablation": "confirmed"}
+                                "merge_success": "confirmed", "exit_success": "confirmed", "ablation": "confirmed"}
 
 
 def test_every_claim_flips_to_not_confirmed_when_ours_loses_everywhere(study):
     _rewrite(study, lambda j: WORSE if j.method == OURS and not j.options else
              (BETTER if j.method == OURS else None))
     assert _verdicts(study) == {c: "not confirmed" for c in
-                                ("collision_free_training", "pareto", "exit_success", "ablation")}
+                                ("collision_free_training", "pareto", "merge_success", "exit_success", "ablation")}
     text = write_report(study).read_text()
-    assert text.count("Verdict: **not confirmed**") == 4 and "Verdict: **confirmed**" not in text
+    assert text.count("Verdict: **not confirmed**") == 5 and "Verdict: **confirmed**" not in text
 
 
 def test_one_scene_with_collisions_makes_the_training_claim_partial(study):
@@ -57,7 +61,8 @@ def test_one_scene_with_collisions_makes_the_training_claim_partial(study):
     claim = next(c for c in claims(results) if c.key == "collision_free_training")
     assert claim.verdict == "partly confirmed (5 of 6 checks)"
     failed = [c for c in claim.checks if c.ok is False]
-    assert [c.what for c in failed] == ["Adv. exiting"] and "T_c 0.9000" in failed[0].detail
+    assert [c.what for c in failed] == ["Adv. exiting"] and "T_c 0.9000 [0.9000, 0.9000]" in failed[0].detail
+    assert "(3 seeds, 60 training episodes; budget smoke, paper profile)" in failed[0].detail
 
 
 def test_a_baseline_faster_and_as_safe_breaks_the_deployment_front_and_names_itself(study):
@@ -72,6 +77,7 @@ def test_exit_success_is_not_confirmed_when_a_baseline_succeeds_more(study):
     _rewrite(study, lambda j: {**fakes.POOR, "R_s": 1.0} if (j.method, j.scene) == ("mp-rl", "exit") else None)
     claim = next(c for c in claims(load_results(study)) if c.key == "exit_success")
     assert [c.ok for c in claim.checks] == [False, True] and "MP-RL 100.0%" in claim.checks[0].detail
+    assert "above its interval: MP-RL" in claim.checks[0].detail
 
 
 def test_missing_results_cannot_be_checked_and_say_so(study):
@@ -106,7 +112,7 @@ def test_a_study_of_both_profiles_judges_the_claims_on_the_paper_profile_and_rep
     report = (root / "report.md").read_text()
     assert "Beyond the paper: the same study under the `safe` control profile" in report
     assert "MoE-RM-SRL trains without collisions" in report and "**not confirmed**" in report
-    for name in ("table5", "table6", "group1_deployment"):
+    for name in ("table5", "table6", "group1_deployment", "seed_intervals", "seeds"):
         assert (root / "tables" / f"{name}.csv").exists() and (root / "tables" / f"{name}_safe.csv").exists()
     paper_t5 = (root / "tables" / "table5.csv").read_text()
     safe_t5 = (root / "tables" / "table5_safe.csv").read_text()

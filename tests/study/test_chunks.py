@@ -1,0 +1,100 @@
+"""A study run in seed chunks gets one report: every job over the union of its chunks' seeds, the pooled
+numbers recomputed, the same bytes each time; a seed finished in two chunks, or chunks of other settings, is
+a one-line error."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import study_fakes as fakes
+
+from highway_srl.cli import main
+from highway_srl.study import chunks
+from highway_srl.study import stats as S
+from highway_srl.study.jobs import OURS
+from highway_srl.study.runner import reproduce
+
+QUIET = {"log": lambda s: None, "report": False}
+JOB = "two-lane/moe-rm-srl"
+
+
+def _chunk(root: Path, seeds: tuple[int, ...], numbers: dict | None = None) -> Path:
+    """One chunk of the study in root, MoE-RM-SRL on two-lane only; numbers: this chunk's job numbers."""
+    folder = root / f"seeds-{'-'.join(map(str, seeds))}"
+    if numbers:
+        Path(f"{folder}.numbers.json").write_text(json.dumps({JOB: numbers}))
+    reproduce("smoke", folder, jobs=1, work=fakes.fake_work, methods=(OURS,), scenes=("two-lane",), seeds=seeds,
+              **QUIET)
+    return folder
+
+
+def _written(root: Path) -> dict[str, bytes]:
+    """Every file of the merged report (the chunks' own folders left out)."""
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*"))
+            if p.is_file() and p.relative_to(root).parts[0] in ("tables", "figures", "report.md", "report.html")}
+
+
+def test_report_only_merges_the_chunks_seeds_and_rebuilds_the_same_bytes(tmp_path, capsys):
+    root = tmp_path / "paper"
+    first = _chunk(root, (0, 1))
+    _chunk(root, (2,), {"C_r": 0.5})  # seed 2 deploys collision-free in 2 of its 4 episodes
+    before = (first / "study.json").read_bytes()
+    assert main(["reproduce", "--budget", "smoke", "--out", str(root), "--report-only"]) == 0
+    assert capsys.readouterr().out.strip() == f"report: {root / 'report.md'}"
+    res = chunks.load_study(root).get(OURS, "two-lane")
+    assert res.job.seeds == (0, 1, 2) and len(res.episodes()) == 60
+    level = res.evaluation["levels"]["C"]
+    assert list(level["per_seed"]) == ["0", "1", "2"] and level["episodes"] == 12
+    wilson = S.wilson(10, 12)  # 4 + 4 + 2 collision-free episodes of 12
+    assert (level["C_r"]["value"], level["C_r"]["low"], level["C_r"]["high"]) == (wilson.mean, wilson.low,
+                                                                                  wilson.high)
+    assert list(res.metrics["per_seed"]) == ["0", "1", "2"]
+    report = (root / "report.md").read_text()
+    assert "`seeds-0-1/` (seeds 0, 1; commit" in report and "`seeds-2/` (seeds 2; commit" in report
+    assert "seeds 0, 1, 2 (3 run(s) per method and scene, batched in one process per chunk)" in report
+    seeds = (root / "tables" / "seeds.csv").read_text().splitlines()
+    assert len([s for s in seeds if s.startswith("Two-lane,MoE-RM-SRL,")]) == 3
+    assert "(3 seeds, 12 episodes; budget smoke, paper profile)" in report
+    written = _written(root)
+    assert "report.html" in written and "figures/deployment_pareto.png" in written
+    assert main(["reproduce", "--out", str(root), "--report-only"]) == 0
+    assert _written(root) == written  # byte for byte: nothing in it changes from one writing to the next
+    assert (first / "study.json").read_bytes() == before  # the chunks are only read
+
+
+def test_a_job_not_finished_in_one_chunk_counts_the_seeds_of_the_others_and_is_listed(tmp_path):
+    # the unfinished chunk may even repeat a finished seed (say, a chunk started again elsewhere): it holds
+    # no result of it, so nothing is counted twice
+    root = tmp_path / "paper"
+    _chunk(root, (0, 1))
+    late = _chunk(root, (1, 2))
+    state = json.loads((late / "study.json").read_text())
+    state["jobs"][JOB]["status"] = "pending"
+    (late / "study.json").write_text(json.dumps(state))
+    (late / "runs/two-lane/moe-rm-srl/eval.json").unlink()
+    res = chunks.load_study(root).get(OURS, "two-lane")
+    assert res.done and res.job.seeds == (0, 1)
+    assert main(["reproduce", "--out", str(root), "--report-only"]) == 0
+    assert f"`seeds-1-2/{JOB}`: pending" in (root / "report.md").read_text()
+
+
+def _error(capsys, root: Path, *argv) -> list[str]:
+    assert main(["reproduce", "--out", str(root), "--report-only", *argv]) == 2
+    return capsys.readouterr().err.strip().splitlines()
+
+
+def test_a_seed_in_two_chunks_or_chunks_of_other_settings_are_one_line_errors(tmp_path, capsys):
+    root = tmp_path / "paper"
+    _chunk(root, (0, 1))
+    other = _chunk(root, (1, 2))
+    err = _error(capsys, root)
+    assert len(err) == 1 and f"seed 1 of job {JOB} is in two chunks, 'seeds-0-1' and 'seeds-1-2'" in err[0]
+    err = _error(capsys, root, "--budget", "quick")
+    assert len(err) == 1 and "chunk 'seeds-0-1' holds a study of budget 'smoke', not 'quick'" in err[0]
+    state = json.loads((other / "study.json").read_text())
+    state["budget_config"]["steps"] = 99
+    (other / "study.json").write_text(json.dumps(state))
+    err = _error(capsys, root)
+    assert len(err) == 1 and "chunks 'seeds-0-1' and 'seeds-1-2' differ in steps" in err[0]
+    assert not (root / "report.md").exists()
