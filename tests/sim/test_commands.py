@@ -68,3 +68,20 @@ def test_check_commands_false_skips_the_value_read():
     assert math.isnan(world.ego_speed[0].item())
     with pytest.raises(ValueError, match="finite"):
         World("two-lane", "C", num_envs=1, seed=0).step([1], [math.nan])
+
+
+@pytest.mark.gpu
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device; none is available here")
+def test_commands_on_a_cuda_device_are_read_only_when_asked():
+    """Reading a CUDA tensor waits for the device, so by default only its dtype and count are checked; with
+    check_commands = True its values are too. Host commands to a CUDA world are checked before the copy."""
+    world = World("two-lane", "C", num_envs=2, device="cuda", seed=0)
+    nan = torch.tensor([8.0, math.nan], device="cuda")
+    world.step(torch.tensor([0, 1], device="cuda"), nan)  # not read
+    with pytest.raises(ValueError, match="finite"):
+        world.step([0, 1], [8.0, math.nan])  # host values: checked
+    world.check_commands = True
+    with pytest.raises(ValueError, match="finite"):
+        world.step(torch.tensor([0, 1], device="cuda"), nan)
+    with pytest.raises(ValueError, match="integer lane indices"):
+        world.step(torch.tensor([0.0, 1.0], device="cuda"), [8.0, 8.0])
