@@ -11,12 +11,13 @@ from highway_srl.scenarios import ENV_IDS  # leaf data, no torch; scenario -> <n
 __version__ = "0.1.0"
 
 
-def make(scenario: str = "two-lane", traffic: str = "C", adversarial: bool = False, num_envs: int = 1,
-         device: str = "cpu", seed: int | None = None, vector: bool | None = None, render_mode: str | None = None):
-    """A Gymnasium Env (num_envs = 1) or VectorEnv (num_envs > 1, or vector=True at any N); see highway_srl.env."""
-    from highway_srl.env import make as _make
+def make(*args, **kwargs):
+    """A Gymnasium Env (num_envs = 1) or VectorEnv (num_envs > 1, or vector=True at any N): highway_srl.env.make,
+    which takes scenario, traffic, adversarial, num_envs, device, seed, vector, render_mode and profile=,
+    adversary=, max_episode_steps=, config= (docs/envs.md), autoreset_mode=, processes=."""
+    from highway_srl.env import make as make_env
 
-    return _make(scenario, traffic, adversarial, num_envs, device, seed, vector, render_mode)
+    return make_env(*args, **kwargs)
 
 
 def __getattr__(name):
@@ -28,7 +29,9 @@ def __getattr__(name):
 
 
 def _register() -> None:
-    """The four ids; gymnasium.make_vec builds the batched HighwayVectorEnv through vector_entry_point.
+    """The four ids; gymnasium.make_vec builds the batched HighwayVectorEnv through vector_entry_point. No
+    max_episode_steps is registered: the envs truncate their episodes themselves (config max_episode_steps,
+    320 by default) and their spec reports it, so gymnasium.make adds no TimeLimit of another length.
     Without gymnasium (a bare GPU machine) the simulator, agents and benches still import; only
     highway_srl.make and the env need it."""
     try:
@@ -36,14 +39,12 @@ def _register() -> None:
     except ImportError:
         return
 
-    from highway_srl.constants import EPISODE_STEPS
-
     for scenario, name in ENV_IDS.items():
         env_id = f"highway-srl/{name}-v0"
         if env_id not in gymnasium.registry:
             gymnasium.register(env_id, entry_point="highway_srl.env:HighwayEnv",
                                vector_entry_point="highway_srl.env:HighwayVectorEnv",
-                               max_episode_steps=EPISODE_STEPS, kwargs={"scenario": scenario})
+                               kwargs={"scenario": scenario})
 
 
 _register()

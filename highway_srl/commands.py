@@ -9,7 +9,7 @@ import os
 import sys
 from pathlib import Path
 
-from highway_srl.constants import TRAFFIC_LEVELS
+from highway_srl.constants import DEFAULT_ADVERSARY, DEFAULT_PROFILE, TRAFFIC_LEVELS
 from highway_srl.scenarios import check_scenario
 
 
@@ -330,11 +330,11 @@ def _add_train(sub, scenario_args) -> None:
     p.add_argument("--envs", type=positive, default=16, help="environments per seed stepped together")
     p.add_argument("--seeds", default="0", help="comma-separated seeds trained together, e.g. 0,1,2,3")
     p.add_argument("--device", default="cpu")
-    p.add_argument("--profile", type=profile_name, default="paper",
+    p.add_argument("--profile", type=profile_name, default=DEFAULT_PROFILE,
                    help="control profile of the rule layer: paper (Eqs. 31-35 as printed, the default) or safe "
                    "(our additions: abort unsafe changes, brake while changing, change window, straddle, 1 m margin, "
                    "SVs turning in)")
-    p.add_argument("--adversary", type=adversary_name, default="paper",
+    p.add_argument("--adversary", type=adversary_name, default=DEFAULT_ADVERSARY,
                    help="group-3 cut-ins with --adversarial: paper (§4.3 as printed, the default) or mild (ours)")
     rate = p.add_mutually_exclusive_group()
     rate.add_argument("--replay-ratio", type=non_negative_float, default=1.0,

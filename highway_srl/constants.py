@@ -71,5 +71,11 @@ TRAFFIC_LEVELS: dict[str, TrafficLevel] = {
 
 SCENARIOS = ("two-lane", "multi-lane", "merge", "exit")
 
+# The rule layer and the adversary of every entry point (train, evaluate, reproduce, the study, the Gymnasium
+# and SB3 envs): the reproduction's, so that a result from any of them compares with the paper's tables.
+# "paper": Eqs. 31-35 as printed (rules.PROFILES); "paper": §4.3's cut-ins as printed (sim.world.ADVERSARIES).
+DEFAULT_PROFILE = "paper"
+DEFAULT_ADVERSARY = "paper"
+
 # Adversarial cut-in (group 3): |d_trig - d_SVi| is drawn from these per SV and episode.
 ADVERSARIAL_TRIGGER_OFFSETS_M = (0.0, 5.0, 10.0)

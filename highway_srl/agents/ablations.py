@@ -11,7 +11,8 @@ from __future__ import annotations
 import torch
 
 from highway_srl.agents.baselines import SingleDQN, speed_reward
-from highway_srl.agents.methods import DEFAULT_PROFILE, MoERMSRL
+from highway_srl.agents.methods import MoERMSRL
+from highway_srl.constants import DEFAULT_PROFILE
 from highway_srl.rules.raw import RawSafetyLayer
 
 ABLATIONS = ("no_mapping", "no_moe", "no_rm")

@@ -24,7 +24,8 @@ import torch
 
 from highway_srl.agents.dqn import DQNLearner, UpdateStats
 from highway_srl.agents.ensemble import ensemble_forward
-from highway_srl.agents.methods import DEFAULT_PROFILE, Decision, Method
+from highway_srl.agents.methods import Decision, Method
+from highway_srl.constants import DEFAULT_PROFILE
 from highway_srl.agents.moe import grouped_q, seed_of_env
 from highway_srl.agents.rule_based import rule_based_action, rule_based_decision
 from highway_srl.constants import EPISODE_STEPS

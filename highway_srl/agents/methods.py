@@ -15,9 +15,8 @@ from highway_srl.agents.dqn import DQNLearner, UpdateStats
 from highway_srl.agents.gating import EXPERT_NAMES, NUM_EXPERTS, expert_action_mask, gate_tables
 from highway_srl.agents.moe import MoEPolicy, seed_of_env
 from highway_srl.agents.replay import ExpertReplay
+from highway_srl.constants import DEFAULT_PROFILE
 from highway_srl.rules import ACTIONS, SafetyLayer, choose_second, control_profile, may_use_second, scenario_reward
-
-DEFAULT_PROFILE = "paper"  # the paper's control mapping (Eqs. 31-35 as printed) is the reproduction's default
 
 
 @dataclass

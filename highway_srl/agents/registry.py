@@ -8,7 +8,8 @@ from __future__ import annotations
 
 from highway_srl.agents.ablations import ABLATIONS, MoEAblation, NoMoE
 from highway_srl.agents.baselines import ETRL, LMRL, MPRL, RL, RMRL, SRRL, Manual, RuleBased
-from highway_srl.agents.methods import DEFAULT_PROFILE, Method, MoERMSRL
+from highway_srl.agents.methods import Method, MoERMSRL
+from highway_srl.constants import DEFAULT_PROFILE
 
 METHODS: dict[str, type[Method]] = {
     cls.name: cls for cls in (MoERMSRL, RL, SRRL, RMRL, MPRL, LMRL, ETRL, RuleBased, Manual)

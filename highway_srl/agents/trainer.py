@@ -18,11 +18,11 @@ import torch
 
 from highway_srl.agents.checkpoint import policy_tensors, split_policy_tensors
 from highway_srl.agents.dqn import DQNConfig, DQNLearner, UpdateLog, UpdateStats
-from highway_srl.agents.methods import DEFAULT_PROFILE, Method
+from highway_srl.agents.methods import Method
 from highway_srl.agents.registry import make_method
 from highway_srl.agents.replay import ExpertReplay
 from highway_srl.agents.rollout import policy_step
-from highway_srl.constants import OBS_DIM
+from highway_srl.constants import DEFAULT_ADVERSARY, DEFAULT_PROFILE, OBS_DIM
 from highway_srl.rules import control_profile
 from highway_srl.rules.episode import RESULT_FIELDS, EpisodeStats, FinishedEpisodes, episode_row
 from highway_srl.sim import World
@@ -41,7 +41,7 @@ class TrainConfig:
     seeds: tuple[int, ...] = (0,)
     device: str = "cpu"
     profile: str = DEFAULT_PROFILE  # control profile of the method's rule layer: "paper" or "safe" (rules.PROFILES)
-    adversary: str = "paper"  # group-3 cut-ins when adversarial: "paper" (§4.3 as printed) or "mild" (ours)
+    adversary: str = DEFAULT_ADVERSARY  # group-3 cut-ins when adversarial: "paper" (§4.3 as printed) or "mild" (ours)
     # Algorithm 1: gradient steps per environment step, each on the acting member (see Trainer.update_counts)
     replay_ratio: float | None = 1.0
     # configs written before replay_ratio: gradient steps per acting member per vector step (replay_ratio None)

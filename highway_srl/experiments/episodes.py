@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 
+from highway_srl.constants import DEFAULT_ADVERSARY
 from highway_srl.sim import World
 from highway_srl.sim.policies import idm_ego
 from highway_srl.sim.render import capture, save_gif, save_png
@@ -37,7 +38,7 @@ def render_episode(run, scenario, traffic, adversarial, policy, seed, out: Path,
         driver = _policy_driver(policy)
         scenario = scenario or "two-lane"
     if backend == "ours":
-        world = World(scenario, traffic, adversarial=adversarial, num_envs=1, seed=seed, adversary=adversary or "paper")
+        world = World(scenario, traffic, adversarial=adversarial, num_envs=1, seed=seed, adversary=adversary or DEFAULT_ADVERSARY)
     else:
         from highway_srl.backends import make_backend
         from highway_srl.backends.drivers import idm_ego_backend

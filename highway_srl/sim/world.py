@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import copy
 import functools
+import math
 from dataclasses import dataclass, fields
 
 import torch
@@ -114,7 +115,17 @@ class World:
     this one steps the first slice, P - 1 forked workers the others (CPU, eager; sim/processes.py): the
     same episodes bit for bit, faster at large batches on several cores. The state stays readable and
     editable in this process between steps; close() ends the workers.
+
+    check_commands: whether step and step_and_reset check the values of their commands (lanes of the road,
+    finite speeds >= 0; their dtype and count are always checked). None (the default): in an eager world
+    when the commands are in host memory (a Python number, a list, a NumPy array or a CPU tensor: a read of
+    memory this process holds, ~20 us); not for commands already on a CUDA device, where a read would wait
+    for the device at every step, nor in a compiled world, whose step is short enough for a read to show.
+    True: always (a debugging aid on CUDA); False: never. Speeds above v_max are valid: the ego's
+    controller clamps its target to v_max.
     """
+
+    check_commands: bool | None = None
 
     def __init__(
         self,
@@ -277,9 +288,23 @@ class World:
         return self.adversary if self.adversarial else None
 
     def _commands(self, target_lane, target_speed) -> tuple[torch.Tensor, torch.Tensor]:
-        """The ego's commands as (B,) long lanes and (B,) float32 speeds on the world's device."""
-        lane = torch.as_tensor(target_lane, device=self.device).long().reshape(self.num_envs)
-        return lane, torch.as_tensor(target_speed, device=self.device, dtype=torch.float32).reshape(self.num_envs)
+        """The ego's commands as (B,) long lanes and (B,) float32 speeds on the world's device, checked first
+        (check_commands): a float lane, a wrong count, a lane off the road or a non-finite or negative speed
+        is one ValueError, before anything is stepped."""
+        lane, speed = torch.as_tensor(target_lane), torch.as_tensor(target_speed)  # host values: on the CPU
+        check_command_types(lane, speed, self.num_envs)
+        if self._reads_commands(lane, speed):
+            check_command_values(lane, speed, self.road.num_lanes)
+        lane = lane.to(self.device).long().reshape(self.num_envs)
+        return lane, speed.to(self.device, torch.float32).reshape(self.num_envs)
+
+    def _reads_commands(self, lane: torch.Tensor, speed: torch.Tensor) -> bool:
+        """Whether step reads its commands' values to check them (see check_commands)."""
+        if torch.compiler.is_compiling():
+            return False  # traced into a caller's graph: a read would break it
+        if self.check_commands is not None:
+            return self.check_commands
+        return self._compiled is None and lane.device.type == "cpu" and speed.device.type == "cpu"
 
     @inference_mode_when_eager
     def step_and_reset(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
@@ -334,6 +359,28 @@ class World:
         """SV1..SV4 of the ego: nearest front/rear vehicle in current_lane and adjacent_lane (B,) within d_max
         (see ego_neighbours)."""
         return ego_neighbours(self.state, self.road, self._lane_tables, current_lane, adjacent_lane, d_max)
+
+
+def check_command_types(lane: torch.Tensor, speed: torch.Tensor, num_envs: int) -> None:
+    """ValueError unless lane holds integers and speed real numbers, num_envs of each (metadata only: no read
+    of the values, so also inside a compiled caller's graph)."""
+    if lane.dtype.is_floating_point or lane.dtype.is_complex or lane.dtype == torch.bool:
+        raise ValueError(f"target_lane must hold integer lane indices, got dtype {lane.dtype}")
+    if speed.dtype.is_complex or speed.dtype == torch.bool:
+        raise ValueError(f"target_speed must hold real numbers (m/s), got dtype {speed.dtype}")
+    for name, t in (("target_lane", lane), ("target_speed", speed)):
+        if t.numel() != num_envs:
+            raise ValueError(f"{name} needs {num_envs} value(s), one per env, got shape {tuple(t.shape)}")
+
+
+def check_command_values(lane: torch.Tensor, speed: torch.Tensor, num_lanes: int) -> None:
+    """ValueError unless every lane is one of the road's 0..num_lanes-1 and every speed is finite and >= 0."""
+    lane_lo, lane_hi = (v.item() for v in torch.aminmax(lane))
+    if lane_lo < 0 or lane_hi >= num_lanes:
+        raise ValueError(f"target_lane must be a lane of this road, 0..{num_lanes - 1}, got {lane_lo}..{lane_hi}")
+    speed_lo, speed_hi = (v.item() for v in torch.aminmax(speed))  # NaN anywhere makes both NaN
+    if not (speed_lo >= 0 and math.isfinite(speed_hi)):
+        raise ValueError(f"target_speed must be finite and >= 0 m/s, got {speed_lo}..{speed_hi}")
 
 
 def step_state(s: WorldState, road: Road, tables: LaneTables, layout: Layout, level: TrafficLevel,

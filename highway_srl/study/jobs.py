@@ -21,7 +21,7 @@ from __future__ import annotations
 import os
 from dataclasses import asdict, dataclass, field
 
-from highway_srl.constants import TRAFFIC_LEVELS
+from highway_srl.constants import DEFAULT_ADVERSARY, DEFAULT_PROFILE, TRAFFIC_LEVELS
 
 
 @dataclass(frozen=True)
@@ -65,8 +65,8 @@ GROUP1_METHODS = tuple(METHOD_LABELS)  # every method, as in the deployment figu
 ABLATIONS: dict[str, str] = {"no_mapping": "w/o MAP", "no_moe": "w/o MoE", "no_rm": "w/o RM"}
 ABLATION_SCENE = "adv-two-lane"
 TRAIN_TRAFFIC = "C"  # every group trains at level C (§4.3)
-REPRODUCTION_PROFILE = "paper"  # the profile of the reproduction; any other is "beyond the paper"
-STUDY_ADVERSARY = "paper"  # group 3's cut-ins, in every profile
+REPRODUCTION_PROFILE = DEFAULT_PROFILE  # the profile of the reproduction; any other is "beyond the paper"
+STUDY_ADVERSARY = DEFAULT_ADVERSARY  # group 3's cut-ins, in every profile
 
 
 @dataclass(frozen=True)
