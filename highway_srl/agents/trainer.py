@@ -115,8 +115,10 @@ def check_config(cfg: TrainConfig) -> None:
 EPISODE_KEYS = {"ret": "episode.ep_return", "deploy": "episode.ep_deploy", "speed": "episode.ep_speed",
                 "length": "episode.ep_len", "collision": "episode.ep_collision", "success": "episode.ep_success",
                 "rm": "episode.ep_rm_return"}
+# the update log's sums since the last row of scalars.csv (a resumed run's next row averages the same updates)
+UPDATE_LOG_KEYS = ("counters.update_log_sums", "counters.update_log_count")
 # keys a resume checkpoint may lack (written before they existed); the loader fills them in
-OPTIONAL_KEYS = frozenset({"episode.ep_rm_return"})
+OPTIONAL_KEYS = frozenset({"episode.ep_rm_return", *UPDATE_LOG_KEYS})
 
 
 @dataclass
@@ -190,7 +192,7 @@ class Trainer:
         self.step_count = torch.zeros((), dtype=torch.long, device=self.device)
         # acting member counts, slot 0 = the final fallback (no expert)
         self.usage = torch.zeros(self.method.num_members + 1, dtype=torch.long, device=self.device)
-        self.update_log = UpdateLog(self.device)  # loss, Q, TD error since the last log (not checkpointed)
+        self.update_log = UpdateLog(self.device)  # loss, Q, TD error since the last row of scalars.csv
         # replay_ratio: updates owed to each member, carried over while below one (fractional ratios)
         self.update_credit = torch.zeros(self.method.num_members, dtype=torch.float64, device=self.device)
         # the deployment reward R_r is tracked for every method alike
@@ -376,6 +378,7 @@ class Trainer:
         state["counters.usage"] = self.usage
         if self.config.replay_ratio is not None:  # legacy configs (updates_per_step) carry no credit
             state["counters.update_credit"] = self.update_credit
+        state[UPDATE_LOG_KEYS[0]], state[UPDATE_LOG_KEYS[1]] = self.update_log.sums, self.update_log.count
         return {k: v.detach().contiguous() for k, v in state.items()}
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
@@ -393,6 +396,9 @@ class Trainer:
         self.usage = state["counters.usage"].to(self.device).clone()
         if "counters.update_credit" in state:
             self.update_credit = state["counters.update_credit"].to(self.device, torch.float64).clone()
+        if UPDATE_LOG_KEYS[0] in state:  # copied in place: the compiled step holds these tensors
+            self.update_log.sums.copy_(state[UPDATE_LOG_KEYS[0]])
+            self.update_log.count.copy_(state[UPDATE_LOG_KEYS[1]])
         self.method.load_state_dict(method)
         self.method.start(self.batch, self.device, self.static)
         self._view = self.layer.observe(self.world)

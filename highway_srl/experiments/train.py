@@ -23,8 +23,8 @@ from highway_srl.agents.checkpoint import CheckpointError, load_checkpoint, poli
 from highway_srl.agents.dqn import UpdateLog
 from highway_srl.agents.trainer import OPTIONAL_KEYS, Episode, Trainer, TrainConfig, check_config
 from highway_srl.experiments.runs import (
-    append_jsonl, check_output_folder, holds_other_files, lock_run, progress_bar, provenance, read_json, read_jsonl,
-    run_config, truncate_jsonl, write_json,
+    append_jsonl, check_output_folder, holds_other_files, is_finite_number, is_int, lock_run, progress_bar, provenance,
+    read_json, read_jsonl, run_config, truncate_jsonl, write_json,
 )
 
 SMOOTH_EPISODES = 20
@@ -128,12 +128,41 @@ class TrainingLog:
         try:  # TensorBoard is optional
             from torch.utils.tensorboard import SummaryWriter
 
-            self.tb = SummaryWriter(str(out / "tb"), purge_step=keep_until)  # a resume drops the later events
+            # a resume drops the events after the checkpoint's step (those at it were logged before it was saved)
+            purge = None if keep_until is None else keep_until + 1
+            self.tb = SummaryWriter(str(out / "tb"), purge_step=purge)
         except Exception:  # noqa: BLE001 - tensorboard not installed: the CSV is enough
             self.tb = None
-        self.recent: list[Episode] = []
+        self.recent: list[tuple[float, bool]] = []  # (return, collision) of the last RECENT_EPISODES episodes
         self.ended, self.step, self.time = 0, trainer.env_steps, time.perf_counter()
         self.usage = trainer.usage.cpu().clone()  # a copy: on the CPU .cpu() is the counter itself
+
+    def state(self) -> dict:
+        """What the next rows depend on besides the trainer (the resume checkpoint's meta "log"): the step of
+        the last row (the cadence), the running window and the usage counts at the last row. JSON floats
+        round-trip exactly, so a resumed run's rows equal an uninterrupted run's."""
+        return {"step": self.step, "ended": self.ended, "recent": [[r, c] for r, c in self.recent],
+                "usage": [int(u) for u in self.usage]}
+
+    def restore(self, state: dict, trainer: Trainer) -> None:
+        """Continue from state() saved at trainer's checkpoint; one line naming the field if it is damaged."""
+        where = "resume/meta.json: log"
+        step, ended, recent, usage = (state.get(k) if isinstance(state, dict) else None
+                                      for k in ("step", "ended", "recent", "usage"))
+        if not (is_int(step) and 0 <= step <= trainer.env_steps and is_int(ended) and ended >= 0):
+            raise ValueError(f"{where}.step / .ended is not a count up to the checkpoint's step ({step!r}, {ended!r})")
+        if not (isinstance(recent, list) and len(recent) <= RECENT_EPISODES and all(
+                isinstance(e, list) and len(e) == 2 and is_finite_number(e[0]) and isinstance(e[1], bool) for e in recent)):
+            raise ValueError(f"{where}.recent is not a list of up to {RECENT_EPISODES} [return, collision] pairs")
+        if not (isinstance(usage, list) and len(usage) == len(self.usage) and all(is_int(u) and u >= 0 for u in usage)):
+            raise ValueError(f"{where}.usage is not {len(self.usage)} non-negative counts")
+        self.step, self.ended = step, ended
+        self.recent = [(float(r), c) for r, c in recent]
+        self.usage = torch.tensor(usage, dtype=self.usage.dtype)
+
+    def due(self, trainer: Trainer) -> bool:
+        """Whether a row is due: LOG_EVERY env steps since the last one."""
+        return trainer.env_steps - self.step >= LOG_EVERY
 
     def _write_kept_rows(self, keep_until: int | None) -> None:
         """A fresh scalars.csv with this log's header; on a resume, the rows up to keep_until, each value
@@ -150,7 +179,7 @@ class TrainingLog:
         write_atomic(self.path, (",".join(self.columns) + "\n" + "".join(rows)).encode())
 
     def episodes(self, finished_eps: list[Episode]) -> None:
-        self.recent = (self.recent + finished_eps)[-RECENT_EPISODES:]
+        self.recent = (self.recent + [(e.ret, e.collision) for e in finished_eps])[-RECENT_EPISODES:]
         self.ended += len(finished_eps)
         if self.tb is not None:
             for e in finished_eps:
@@ -165,8 +194,8 @@ class TrainingLog:
         values = {"steps_per_s": (step - self.step) * len(trainer.config.seeds) / wall,
                   "episodes_per_s": self.ended / wall, "epsilon": trainer.config.dqn.epsilon(step)}
         if self.recent:
-            values["mean_return"] = sum(e.ret for e in self.recent) / len(self.recent)
-            values["collision_free"] = sum(not e.collision for e in self.recent) / len(self.recent)
+            values["mean_return"] = sum(r for r, _ in self.recent) / len(self.recent)
+            values["collision_free"] = sum(not c for _, c in self.recent) / len(self.recent)
         values["episodes"] = len(self.recent)
         values.update(trainer.update_log.read())
         if int((usage - self.usage).sum()) > 0:
@@ -179,6 +208,11 @@ class TrainingLog:
             for k, v in values.items():
                 self.tb.add_scalar(k, v, step)
         return values
+
+    def flush(self) -> None:
+        """TensorBoard's queued events to disk (before a checkpoint: a kill after it loses none of them)."""
+        if self.tb is not None:
+            self.tb.flush()
 
     def close(self) -> None:
         if self.tb is not None:
@@ -271,6 +305,8 @@ def _train_locked(cfg: TrainConfig, out: Path, resume: bool, checkpoint_every: i
         meta = _load_resume(trainer, out / "resume", cfg)
         truncate_jsonl(log, lambda r: r["step"] <= trainer.env_steps)
         scalars = TrainingLog(out, trainer, keep_until=trainer.env_steps)
+        if "log" in meta:  # checkpoints written before the log's state: the cadence restarts at the checkpoint
+            scalars.restore(meta["log"], trainer)
         prior_wall = meta.get("wall_s", 0.0)
     else:
         log.unlink(missing_ok=True)  # a resume before the first checkpoint starts afresh
@@ -279,27 +315,28 @@ def _train_locked(cfg: TrainConfig, out: Path, resume: bool, checkpoint_every: i
         scalars = TrainingLog(out, trainer)
     log.touch()
     bar = progress_bar(cfg.steps, f"train {cfg.method}", enabled=progress, initial=min(trainer.env_steps, cfg.steps))
-    last_ckpt, last_log = trainer.env_steps, trainer.env_steps
+    last_ckpt = trainer.env_steps
     try:
         while trainer.env_steps < cfg.steps:
             finished_eps = trainer.step()
             at_end = trainer.env_steps >= cfg.steps
             checkpoint = trainer.env_steps - last_ckpt >= checkpoint_every and not at_end
-            if at_end or checkpoint or trainer.env_steps - last_log >= LOG_EVERY:
+            if at_end or checkpoint or scalars.due(trainer):
                 finished_eps += trainer.drain()  # everything up to this step is in the log before it is written
             if finished_eps:
                 append_jsonl(log, [_episode_row(e) for e in finished_eps])
                 scalars.episodes(finished_eps)
             if bar is not None:  # tqdm redraws on its own clock (mininterval); no tensor is read here
                 bar.update(min(trainer.env_steps, cfg.steps) - bar.n)
-            if trainer.env_steps - last_log >= LOG_EVERY or at_end:
+            if scalars.due(trainer) or at_end:
                 values = scalars.log(trainer)
                 if bar is not None:
                     bar.set_postfix(_postfix(values), refresh=False)
-                last_log = trainer.env_steps
             if checkpoint:
                 wall = prior_wall + time.perf_counter() - started
-                save_checkpoint(out / "resume", trainer.state_dict(), {**_meta(cfg, trainer, code), "wall_s": wall})
+                scalars.flush()
+                save_checkpoint(out / "resume", trainer.state_dict(),
+                                {**_meta(cfg, trainer, code), "wall_s": wall, "log": scalars.state()})
                 last_ckpt = trainer.env_steps
     finally:
         scalars.close()
