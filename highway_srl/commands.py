@@ -191,10 +191,11 @@ def format_report(report: dict) -> str:
 
 def _cmd_evaluate(args) -> int:
     from highway_srl.experiments.evaluate import evaluate_run
-    from highway_srl.experiments.runs import check_output_file, progress_bar, run_folder
+    from highway_srl.experiments.policy import read_model
+    from highway_srl.experiments.runs import check_output_file, progress_bar
     from highway_srl.sim.world import check_device
 
-    run_folder(args.run)
+    read_model(args.run)  # the run, its config and its model (finite weights) checked before the bar starts
     check_device(args.device)
     out = Path(args.out) if args.out else Path(args.run) / f"eval-{args.backend}.json"
     check_output_file(out, overwrite=args.overwrite)  # before the work, not after it

@@ -122,6 +122,17 @@ def load_checkpoint(
     return tensors, meta
 
 
+def first_non_finite(tensors: dict[str, torch.Tensor], nan_only: tuple[str, ...] = ()) -> str | None:
+    """The first key whose floating-point tensor holds a NaN or an infinity (for keys starting with one of
+    nan_only: a NaN; there an infinity can be a value); None if every one is finite. One host read per tensor."""
+    for key, value in tensors.items():
+        if value.is_floating_point():
+            bad = value.isnan() if key.startswith(nan_only) else ~value.isfinite()
+            if bool(bad.any()):
+                return key
+    return None
+
+
 # One key scheme for a trained policy's tensors, in the final model/ and in resume/ alike:
 # "learner.<name>" (the networks: weights, targets, Adam moments) and "method.<name>" (a method's own
 # state, e.g. LM-RL's λ). Only the two functions below build or read these keys.

@@ -27,12 +27,11 @@ def render_episode(run, scenario, traffic, adversarial, policy, seed, out: Path,
     if out.suffix.lower() != ".gif":
         raise ValueError(f"--out must end in .gif, got {str(out)!r}")
     if run is not None:
-        from highway_srl.agents.trainer import TrainConfig
         from highway_srl.experiments.policy import load_driver
-        from highway_srl.experiments.runs import run_config
+        from highway_srl.experiments.runs import train_config
 
         driver, scenario = load_driver(run, scenario, profile)
-        adversary = adversary or TrainConfig.from_dict(run_config(run)["config"]).adversary
+        adversary = adversary or train_config(run).adversary
     else:
         driver = _policy_driver(policy)
         scenario = scenario or "two-lane"

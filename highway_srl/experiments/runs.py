@@ -12,6 +12,7 @@ from pathlib import Path
 
 from highway_srl import __version__
 from highway_srl.agents.checkpoint import write_atomic
+from highway_srl.agents.trainer import TrainConfig
 
 
 def commit() -> str | None:
@@ -84,7 +85,7 @@ def run_folder(path: str | Path) -> Path:
         raise FileNotFoundError(f"run folder {str(p)!r} does not exist")
     if not (p / "config.json").exists():
         raise ValueError(f"{str(p)!r} is not a run folder (no config.json)")
-    run_config(p)
+    train_config(p)
     return p
 
 
@@ -99,6 +100,17 @@ def run_config(folder: str | Path) -> dict:
     if missing:
         raise ValueError(f"{path} is damaged (its config lacks {', '.join(missing)})")
     return data
+
+
+def train_config(folder: str | Path) -> TrainConfig:
+    """The TrainConfig of a run folder's config.json, every setting checked (types, finite numbers, ranges);
+    one line naming the file and the setting otherwise."""
+    path = Path(folder) / "config.json"
+    try:
+        return TrainConfig.from_dict(run_config(folder)["config"])
+    except (TypeError, ValueError) as err:
+        first = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise ValueError(f"{path} is damaged ({first})") from None
 
 
 def check_output_folder(path: Path, flag: str = "--out") -> None:

@@ -19,12 +19,14 @@ from pathlib import Path
 
 import torch
 
-from highway_srl.agents.checkpoint import CheckpointError, load_checkpoint, policy_tensors, save_checkpoint, write_atomic
+from highway_srl.agents.checkpoint import (
+    MODEL_FILE, CheckpointError, first_non_finite, load_checkpoint, policy_tensors, save_checkpoint, write_atomic,
+)
 from highway_srl.agents.dqn import UpdateLog
 from highway_srl.agents.trainer import OPTIONAL_KEYS, Episode, Trainer, TrainConfig, check_config
 from highway_srl.experiments.runs import (
     append_jsonl, check_output_folder, holds_other_files, is_finite_number, is_int, lock_run, progress_bar, provenance,
-    read_json, read_jsonl, run_config, truncate_jsonl, write_json,
+    read_json, read_jsonl, run_config, train_config, truncate_jsonl, write_json,
 )
 
 SMOOTH_EPISODES = 20
@@ -232,6 +234,14 @@ def last_checkpoint_step(out: Path) -> int | None:
         return None
 
 
+def saved_checkpoint_every(out: Path, default: int) -> int:
+    """checkpoint_every as config.json records it (a positive integer), default where it records none."""
+    value = run_config(out).get("checkpoint_every", default)
+    if not is_int(value) or value < 1:
+        raise ValueError(f"{out / 'config.json'} is damaged (checkpoint_every must be a positive integer, got {value!r})")
+    return value
+
+
 def _check_target(out: Path, resume: bool) -> None:
     """Refuse, before anything is written, a run folder that this command must not touch."""
     check_output_folder(out)
@@ -259,6 +269,9 @@ def _load_resume(trainer: Trainer, folder: Path, cfg: TrainConfig) -> dict:
         if got.shape != want.shape or got.dtype != want.dtype:
             raise CheckpointError(f"{folder}: {key} is {tuple(got.shape)} {got.dtype}, this run's config "
                                   f"(envs {cfg.envs}, seeds {list(cfg.seeds)}) needs {tuple(want.shape)} {want.dtype}")
+    bad = first_non_finite(tensors, nan_only=("world.",))
+    if bad is not None:
+        raise CheckpointError(f"{folder / MODEL_FILE}: {bad} holds NaN or infinite values; it cannot be resumed")
     try:
         trainer.load_state_dict(tensors)
     except (RuntimeError, ValueError, KeyError, TypeError, IndexError) as err:
@@ -279,12 +292,8 @@ def train_run(cfg: TrainConfig | None, out: str | Path, resume: bool = False, ch
     code = provenance()  # the code that runs is the code loaded now, not what is checked out at the end
     _check_target(out, resume)
     if resume:
-        saved = run_config(out)
-        try:
-            cfg = TrainConfig.from_dict(saved["config"])
-        except (TypeError, ValueError) as err:
-            raise ValueError(f"{out / 'config.json'} is damaged ({str(err).splitlines()[0]})") from None
-        checkpoint_every = int(saved.get("checkpoint_every", checkpoint_every))
+        cfg = train_config(out)
+        checkpoint_every = saved_checkpoint_every(out, checkpoint_every)
     check_config(cfg)  # a setting no run can have is refused before any folder is made
     out.mkdir(parents=True, exist_ok=True)
     with lock_run(out):
@@ -329,11 +338,14 @@ def _train_locked(cfg: TrainConfig, out: Path, resume: bool, checkpoint_every: i
             if bar is not None:  # tqdm redraws on its own clock (mininterval); no tensor is read here
                 bar.update(min(trainer.env_steps, cfg.steps) - bar.n)
             if scalars.due(trainer) or at_end:
+                since = scalars.step
                 values = scalars.log(trainer)
+                check_finite(trainer, values, since)
                 if bar is not None:
                     bar.set_postfix(_postfix(values), refresh=False)
             if checkpoint:
                 wall = prior_wall + time.perf_counter() - started
+                check_finite(trainer, {}, last_ckpt)  # a checkpoint never holds a diverged state
                 scalars.flush()
                 save_checkpoint(out / "resume", trainer.state_dict(),
                                 {**_meta(cfg, trainer, code), "wall_s": wall, "log": scalars.state()})
@@ -353,6 +365,38 @@ def _train_locked(cfg: TrainConfig, out: Path, resume: bool, checkpoint_every: i
     write_json(out / "metrics.json", metrics)
     _remove_resume(out / "resume")
     return metrics
+
+
+class TrainingDiverged(ValueError):
+    """A loss, Q-value or weight became NaN or infinite: the run stops (the CLI's one-line error)."""
+
+
+def check_finite(trainer: Trainer, values: dict, since: int) -> None:
+    """TrainingDiverged at the first non-finite update statistic (values: a scalars.csv row's loss, q_mean,
+    td_error) or weight (any member's, then the rest of the policy: targets, Adam moments, the method's
+    state). Called at each scalars.csv row, whose update statistics are read anyway, and before each
+    checkpoint: one host read per member's weights there, none per gradient step, so the step named is
+    the check's, the divergence lies between `since` and it."""
+    step, bad = trainer.env_steps, None
+    members = (~trainer.learner.online.flat.isfinite().all(1)).nonzero().flatten().tolist()
+    if members:
+        bad = f"the weights of {member_name(trainer, members[0])}"
+    elif any(not math.isfinite(values[k]) for k in UpdateLog.FIELDS if k in values):
+        bad = "the loss, Q-value or TD error of the updates (" + ", ".join(
+            f"{k} {values[k]}" for k in UpdateLog.FIELDS if k in values) + ")"
+    elif (key := first_non_finite(policy_tensors(trainer.learner, trainer.method))) is not None:
+        bad = f"the policy's {key}"
+    if bad is not None:
+        raise TrainingDiverged(f"training stopped at env step {step}: {bad} became NaN or infinite after step "
+                               f"{since} (checked at each scalars.csv row and checkpoint); nothing after it is saved")
+
+
+def member_name(trainer: Trainer, member: int) -> str:
+    """A learner member in words: "expert E2,1 (seed 3)" for MoE, "member 0 (seed 0)" otherwise."""
+    per_seed = trainer.method.num_members // len(trainer.config.seeds)
+    names = getattr(trainer.method, "member_names", None)
+    name = f"expert {names[member % per_seed]}" if names else f"member {member % per_seed}"
+    return f"{name} (seed {trainer.config.seeds[member // per_seed]})"
 
 
 def _usage_tags(shares: dict[str, float]) -> dict[str, float]:
