@@ -144,6 +144,8 @@ def _cmd_train(args) -> int:
     from highway_srl.experiments.train import finished, last_checkpoint_step, train_run
 
     out = Path(args.out)
+    if args.drop_damaged and not args.resume:
+        raise ValueError("--drop-damaged is for --resume (a new run has no logs to cut)")
     if args.resume:
         cfg = None
         if out.is_dir() and finished(out):
@@ -157,7 +159,7 @@ def _cmd_train(args) -> int:
                   f"{cfg.steps:,}: this run takes no gradient step (set --learning-starts)", file=sys.stderr)
     try:
         metrics = train_run(cfg, out, resume=args.resume, checkpoint_every=args.checkpoint_every,
-                            progress=not args.quiet)
+                            progress=not args.quiet, drop_damaged=args.drop_damaged)
     except KeyboardInterrupt:
         step = last_checkpoint_step(out)
         where = f"its last checkpoint (step {step:,})" if step is not None else "step 0 (no checkpoint was written yet)"
@@ -353,6 +355,9 @@ def _add_train(sub, scenario_args) -> None:
     p.add_argument("--checkpoint-every", type=positive, default=50_000, help="env steps between resume checkpoints")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint, "
                    "with every setting it was started with (config.json); the other options are then ignored")
+    p.add_argument("--drop-damaged", action="store_true",
+                   help="with --resume: where episodes.jsonl or scalars.csv has a damaged line, keep the rows before "
+                        "it and continue (says how many were dropped) instead of refusing")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--out", required=True, help="run folder")
     p.set_defaults(func=_cmd_train)

@@ -20,7 +20,8 @@ def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0) -> 
     from highway_srl.experiments.evaluate import evaluate_run
     from highway_srl.experiments.train import train_run
 
-    from highway_srl.experiments.runs import check_output_folder, holds_other_files, progress_bar, read_json, run_config
+    from highway_srl.experiments.records import read_metrics
+    from highway_srl.experiments.runs import check_output_folder, holds_other_files, progress_bar, run_config
 
     run = out / "run"
     cfg = TrainConfig(steps=steps, envs=envs, seeds=(seed,), replay_ratio=DEMO_REPLAY_RATIO,
@@ -40,7 +41,7 @@ def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0) -> 
     out.mkdir(parents=True, exist_ok=True)
     if not (run / "metrics.json").exists():
         train_run(cfg, run, resume=(run / "config.json").exists())
-    metrics = read_json(run / "metrics.json")
+    metrics = read_metrics(run / "metrics.json")
     bar = progress_bar(1, "evaluate levels A-F")
 
     def progress(done: int, total: int) -> None:

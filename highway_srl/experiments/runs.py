@@ -53,9 +53,17 @@ def read_json(path: Path) -> dict:
     if not path.exists():
         raise FileNotFoundError(f"{path} does not exist")
     try:
-        return json.loads(path.read_text())
+        return json.loads(read_text(path))
     except json.JSONDecodeError as err:
         raise ValueError(f"{path} is not valid JSON ({err.msg} at line {err.lineno})") from None
+
+
+def read_text(path: Path) -> str:
+    """A file's text; ValueError naming the file if it is not UTF-8."""
+    try:
+        return path.read_text()
+    except UnicodeDecodeError as err:
+        raise ValueError(f"{path} is not UTF-8 text (byte {err.start})") from None
 
 
 def open_state(root: Path, name: str, what: str) -> dict | None:
@@ -105,9 +113,9 @@ def run_config(folder: str | Path) -> dict:
 def train_config(folder: str | Path) -> TrainConfig:
     """The TrainConfig of a run folder's config.json, every setting checked (types, finite numbers, ranges);
     one line naming the file and the setting otherwise."""
-    path = Path(folder) / "config.json"
+    path, settings = Path(folder) / "config.json", run_config(folder)["config"]
     try:
-        return TrainConfig.from_dict(run_config(folder)["config"])
+        return TrainConfig.from_dict(settings)
     except (TypeError, ValueError) as err:
         first = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise ValueError(f"{path} is damaged ({first})") from None
@@ -181,20 +189,22 @@ def append_jsonl(path: Path, rows: list[dict]) -> None:
 
 
 def read_jsonl(path: Path) -> list[dict]:
+    """The JSON objects of a JSON-lines file, one a line; ValueError naming the first line that is not one
+    (a damaged line is never skipped: records.read_episode_log checks a training log's rows too)."""
     if not path.exists():
         return []
     rows = []
-    for line in path.read_text().splitlines():
-        line = line.strip()
-        if line:
-            try:
-                rows.append(json.loads(line))
-            except json.JSONDecodeError:
-                break  # a torn last line from an interrupted run
+    for n, line in enumerate(read_text(path).splitlines(), 1):
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError as err:
+            raise ValueError(f"{path} line {n} is damaged (not JSON: {err.msg})") from None
+        if not isinstance(row, dict):
+            raise ValueError(f"{path} line {n} is damaged (a JSON {type(row).__name__}, not an object)")
+        rows.append(row)
     return rows
 
 
-def truncate_jsonl(path: Path, keep) -> None:
-    """Keep only rows for which keep(row) is true (resuming drops episodes logged after the checkpoint)."""
-    rows = [r for r in read_jsonl(path) if keep(r)]
+def write_jsonl(path: Path, rows: list[dict]) -> None:
+    """Replace a JSON-lines file with rows, atomically."""
     write_atomic(path, "".join(json.dumps(r) + "\n" for r in rows).encode())

@@ -8,10 +8,11 @@ from pathlib import Path
 import pytest
 import torch
 from safetensors.torch import load_file, save_file
-from cli_runs import hashes, interrupted_run, one_line_error, run
+from cli_runs import TRAIN, hashes, interrupted_run, one_line_error, run
 
 from highway_srl.agents.dqn import DQNConfig
 from highway_srl.agents.trainer import TrainConfig, check_config
+from highway_srl.cli import main
 from highway_srl.experiments import train as train_mod
 
 
@@ -113,3 +114,191 @@ def test_resume_refuses_a_checkpoint_with_non_finite_weights(capsys, tmp_path, m
     one_line_error(code, err, "learner.online.flat holds NaN or infinite values")
     assert hashes(out) == before
     assert torch.isinf(load_file(path)["learner.online.flat"][0, 0])
+
+
+# ---------------------------------------------------------------- one schema for the files read back
+@pytest.fixture(scope="module")
+def killed_run(tmp_path_factory):
+    """A run of 1 env killed by Ctrl-C after 1,000 steps: its checkpoint at 700 covers two episodes (320
+    steps each or fewer) and three scalars.csv rows (LOG_EVERY 200); a third episode and more rows follow."""
+    out = tmp_path_factory.mktemp("killed") / "run"
+    real_step = train_mod.Trainer.step
+
+    def dying(self):
+        if self.env_steps >= 1000:
+            raise KeyboardInterrupt
+        return real_step(self)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(train_mod.Trainer, "step", dying)
+        patch.setattr(train_mod, "LOG_EVERY", 200)
+        code = main(TRAIN + ["--envs", "1", "--steps", "1400", "--checkpoint-every", "700", "--out", str(out)])
+    assert code == 130 and train_mod.last_checkpoint_step(out) == 700
+    assert len((out / "episodes.jsonl").read_text().splitlines()) == 3
+    return out
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory, finished_run):
+    """A finished run as demo --steps 160 --envs 8 reuses it (its metrics.json is read back)."""
+    out = tmp_path_factory.mktemp("demo")
+    shutil.copytree(finished_run, out / "run")
+    _edit_config(out / "run", lambda c: c.update(replay_ratio=0.25))
+    return out
+
+
+def _json_edit(edit):
+    """A damage to a JSON file: edit(data) changes the parsed object in place."""
+    def damage(path: Path) -> None:
+        data = json.loads(path.read_text())
+        edit(data)
+        path.write_text(json.dumps(data))
+    return damage
+
+
+def _line_edit(n: int, edit):
+    """A damage to line n (0-based) of a text file: edit(line) -> its replacement."""
+    def damage(path: Path) -> None:
+        lines = path.read_text().splitlines(keepends=True)
+        lines[n] = edit(lines[n])
+        path.write_text("".join(lines))
+    return damage
+
+
+def _row_edit(n: int, edit):
+    """A damage to the JSON object on line n of a JSON-lines file."""
+    return _line_edit(n, lambda line: json.dumps(edit(json.loads(line))) + "\n")
+
+
+def _garbage(path: Path) -> None:  # a line of garbage after the first
+    lines = path.read_text().splitlines(keepends=True)
+    path.write_text("".join(lines[:1] + ["\x00garbage}{\n"] + lines[1:]))
+
+
+def _truncated(path: Path) -> None:  # cut at half its bytes
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+
+
+def _csv_cell(row: int, column: int, value: str):
+    def edit(line: str) -> str:
+        cells = line.rstrip("\n").split(",")
+        cells[column] = value
+        return ",".join(cells) + "\n"
+    return _line_edit(row, edit)
+
+
+RESUME = ("train", "--resume", "--quiet", "--out")
+DAMAGES = {  # file: {kind of damage: (damage, needle of the one-line error)}
+    "config.json": {
+        "wrong type": (_json_edit(lambda d: d["config"].__setitem__("steps", "4000")), "steps"),
+        "missing field": (_json_edit(lambda d: d["config"].pop("envs")), "envs"),
+        "NaN": (_json_edit(lambda d: d["config"]["dqn"].__setitem__("lr", float("nan"))), "dqn.lr"),
+        "garbage line": (_garbage, "not valid JSON"),
+        "truncated": (_truncated, "not valid JSON"),
+    },
+    "resume/meta.json": {
+        "wrong type": (_json_edit(lambda d: d["log"].__setitem__("step", "600")), "log: step must be a non-negative integer"),
+        "missing field": (_json_edit(lambda d: d["log"].pop("usage")), "log: usage must be"),
+        "NaN": (_json_edit(lambda d: d.__setitem__("wall_s", float("nan"))), "wall_s"),
+        "garbage line": (_garbage, "not valid JSON"),
+        "truncated": (_truncated, "not valid JSON"),
+    },
+    "episodes.jsonl": {
+        "wrong type": (_row_edit(0, lambda r: {**r, "collision": "no"}), "line 1 is damaged: the row: collision"),
+        "missing field": (_line_edit(1, lambda _: '{"seed": 0}\n'), "line 2 is damaged: the row: step is missing"),
+        "NaN": (_row_edit(1, lambda r: {**r, "return": float("nan")}), "line 2 is damaged: the row: return"),
+        "garbage line": (_garbage, "line 2 is damaged: not JSON"),
+        "truncated": (_truncated, "the checkpoint counted 2"),
+    },
+    "scalars.csv": {
+        "wrong type": (_csv_cell(1, 3, "abc"), "line 2 is damaged: epsilon is not a number"),
+        "missing field": (_line_edit(2, lambda line: line.split(",", 1)[0] + "\n"), "line 3 is damaged: 1 cells"),
+        "NaN": (_csv_cell(2, 3, "nan"), "line 3 is damaged: epsilon is nan"),
+        "garbage line": (_garbage, "line 2 is damaged"),
+        "truncated": (_truncated, "the file was cut or edited"),
+    },
+}
+DEMO_DAMAGES = {
+    "wrong type": (_json_edit(lambda d: d["mean"].__setitem__("T_c", "0.9")), "mean: T_c"),
+    "missing field": (_json_edit(lambda d: d.pop("env_steps_per_seed")), "env_steps_per_seed is missing"),
+    "NaN": (_json_edit(lambda d: d.__setitem__("wall_s", float("inf"))), "wall_s"),
+    "garbage line": (_garbage, "not valid JSON"),
+    "truncated": (_truncated, "not valid JSON"),
+}
+CASES = [(name, kind) for name, kinds in DAMAGES.items() for kind in kinds]
+
+
+@pytest.mark.parametrize("name, kind", CASES)
+def test_a_damaged_run_file_is_one_line_naming_it_and_nothing_changes(capsys, killed_run, tmp_path, name, kind):
+    run_dir = _copy(killed_run, tmp_path)
+    damage, needle = DAMAGES[name][kind]
+    damage(run_dir / name)
+    before = hashes(run_dir)
+    code, _, err = run(capsys, *RESUME, run_dir)
+    one_line_error(code, err, needle)
+    assert Path(name).name in err and hashes(run_dir) == before
+
+
+@pytest.mark.parametrize("kind", list(DEMO_DAMAGES))
+def test_a_damaged_metrics_json_is_one_line_naming_it_and_nothing_changes(capsys, demo_run, tmp_path, kind):
+    out = tmp_path / "demo"
+    shutil.copytree(demo_run, out)
+    damage, needle = DEMO_DAMAGES[kind]
+    damage(out / "run" / "metrics.json")
+    before = hashes(out)
+    code, _, err = run(capsys, "demo", "--steps", "160", "--envs", "8", "--episodes", "1", "--out", out)
+    one_line_error(code, err, needle)
+    assert "metrics.json" in err and hashes(out) == before
+
+
+EVAL_DAMAGES = {
+    "wrong type": (_json_edit(lambda d: d["levels"]["A"]["C_r"].__setitem__("value", [1])), "levels.A.C_r: value"),
+    "missing field": (_json_edit(lambda d: d["levels"]["A"].pop("R_r")), "levels.A.R_r must be a JSON object"),
+    "NaN": (_json_edit(lambda d: d["levels"]["A"]["avg_speed"].__setitem__("low", float("nan"))), "avg_speed: low"),
+    "garbage line": (_garbage, "not valid JSON"),
+    "truncated": (_truncated, "not valid JSON"),
+}
+
+
+@pytest.fixture(scope="module")
+def evaluation(tmp_path_factory, finished_run):
+    out = tmp_path_factory.mktemp("eval") / "eval.json"
+    assert main(["evaluate", str(finished_run), "--episodes", "1", "--json", "--out", str(out)]) == 0
+    return out
+
+
+@pytest.mark.parametrize("kind", list(EVAL_DAMAGES))
+def test_a_damaged_eval_json_is_one_line_naming_it_and_the_field(evaluation, tmp_path, kind):
+    from highway_srl.experiments.records import read_eval
+
+    path = tmp_path / "eval.json"
+    shutil.copy(evaluation, path)
+    read_eval(path)  # the file as evaluate writes it passes
+    damage, needle = EVAL_DAMAGES[kind]
+    damage(path)
+    before = path.read_bytes()
+    with pytest.raises(ValueError) as err:
+        read_eval(path)
+    assert needle in str(err.value) and str(path) in str(err.value) and "\n" not in str(err.value)
+    assert path.read_bytes() == before
+
+
+def test_drop_damaged_keeps_the_rows_before_a_damaged_line_and_says_how_many_it_dropped(capsys, killed_run, tmp_path):
+    run_dir = _copy(killed_run, tmp_path)
+    first = (run_dir / "episodes.jsonl").read_text().splitlines()[0]
+    _garbage(run_dir / "episodes.jsonl")
+    code, _, err = run(capsys, *RESUME, run_dir, "--drop-damaged")
+    assert code == 0, err
+    assert "dropped 3 row(s) from line 2 on, where it is damaged (not JSON" in err
+    assert (run_dir / "episodes.jsonl").read_text().splitlines()[0] == first
+    assert json.loads((run_dir / "metrics.json").read_text())["env_steps_per_seed"] == 1400
+
+
+def test_a_cut_off_last_line_is_dropped_with_a_note(capsys, killed_run, tmp_path):
+    run_dir = _copy(killed_run, tmp_path)
+    kept = (run_dir / "episodes.jsonl").read_text().splitlines()[:2]  # the episodes before the checkpoint
+    with open(run_dir / "episodes.jsonl", "a") as f:
+        f.write('{"seed": 0, "step": 99')  # an append the kill cut short
+    code, _, err = run(capsys, *RESUME, run_dir)
+    assert code == 0 and "episodes.jsonl: dropped its cut-off last line (an interrupted write)" in err
+    assert (run_dir / "episodes.jsonl").read_text().splitlines()[:2] == kept

@@ -157,14 +157,13 @@ def test_evaluate_checks_its_output_before_evaluating(capsys, finished_run, tmp_
 @pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o077, 0o600)])
 def test_written_files_get_the_usual_mode_under_the_umask(tmp_path, umask, mode):
     from highway_srl.agents.checkpoint import save_checkpoint
-    from highway_srl.experiments.runs import truncate_jsonl, write_json
+    from highway_srl.experiments.runs import write_json, write_jsonl
 
     old = os.umask(umask)
     try:
         write_json(tmp_path / "a.json", {"x": 1})
         save_checkpoint(tmp_path / "model", {"w": torch.zeros(2)}, {"m": 1})
-        (tmp_path / "e.jsonl").write_text('{"step": 1}\n')
-        truncate_jsonl(tmp_path / "e.jsonl", lambda r: True)
+        write_jsonl(tmp_path / "e.jsonl", [{"step": 1}])
     finally:
         os.umask(old)
     for path in (tmp_path / "a.json", tmp_path / "model" / "model.safetensors", tmp_path / "model" / "meta.json",
