@@ -192,16 +192,24 @@ def format_report(report: dict) -> str:
 
 
 def _cmd_evaluate(args) -> int:
-    from highway_srl.experiments.evaluate import evaluate_run
     from highway_srl.experiments.policy import read_model
-    from highway_srl.experiments.runs import check_output_file, progress_bar
+    from highway_srl.experiments.runs import claim_outputs, progress_bar
     from highway_srl.sim.world import check_device
 
     read_model(args.run)  # the run, its config and its model (finite weights) checked before the bar starts
     check_device(args.device)
-    out = Path(args.out) if args.out else Path(args.run) / f"eval-{args.backend}.json"
-    check_output_file(out, overwrite=args.overwrite)  # before the work, not after it
-    bar = progress_bar(1, "evaluate", enabled=not args.json)
+    out = args.out or str(Path(args.run) / f"eval-{args.backend}.json")  # as given: "new/" names a folder
+    with claim_outputs([out], args.overwrite):  # checked before the work, locked until written
+        out = Path(out)
+        report = _evaluate(args, out, progress_bar(1, "evaluate", enabled=not args.json))
+    print(json.dumps(report, indent=2) if args.json else format_report(report))
+    if not args.json:
+        print(f"written to {out}")
+    return 0
+
+
+def _evaluate(args, out: Path, bar) -> dict:
+    from highway_srl.experiments.evaluate import evaluate_run
 
     def progress(done: int, total: int) -> None:
         if bar is not None:
@@ -212,20 +220,18 @@ def _cmd_evaluate(args) -> int:
         report = evaluate_run(args.run, scenario=args.scenario, traffics=args.traffic, episodes=args.episodes,
                               adversarial=True if args.adversarial else None, device=args.device,
                               backend=args.backend, out=out, seed=args.seed, progress=progress,
-                              profile=args.profile, adversary=args.adversary)
+                              profile=args.profile, adversary=args.adversary, overwrite=args.overwrite)
     finally:
         if bar is not None:
             bar.close()
-    print(json.dumps(report, indent=2) if args.json else format_report(report))
-    if not args.json:
-        print(f"written to {out}")
-    return 0
+    return report
 
 
 def _cmd_demo(args) -> int:
     from highway_srl.experiments.demo import run_demo
 
-    run_demo(Path(args.out), steps=args.steps, envs=args.envs, episodes=args.episodes, seed=args.seed)
+    run_demo(Path(args.out), steps=args.steps, envs=args.envs, episodes=args.episodes, seed=args.seed,
+             overwrite=args.overwrite)
     return 0
 
 
@@ -402,6 +408,8 @@ def _add_demo(sub) -> None:
     p.add_argument("--seed", type=non_negative, default=0)
     p.add_argument("--out", default="out", help="demo folder; a run already there is reused only if it was "
                    "trained with the same --steps, --envs and --seed")
+    p.add_argument("--overwrite", action="store_true", help="replace the report, evaluation and pictures of an "
+                   "earlier demo in --out (refused without it)")
     p.set_defaults(func=_cmd_demo)
 
 

@@ -13,10 +13,24 @@ from highway_srl.constants import TRAFFIC_LEVELS
 DEMO_REPLAY_RATIO = 0.25
 
 
-def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0) -> Path:
+# what a demo writes besides its run folder (refused if there, unless overwrite)
+DEMO_OUTPUTS = ("report.md", "evaluation.json", "two-lane-C.gif", "two-lane-C.png", "deployment.png")
+
+
+def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0, overwrite: bool = False) -> Path:
+    """Train (or reuse the run in OUT/run), evaluate, render and report; the outputs are checked before any
+    work and locked until written (runs.claim_outputs), each written atomically."""
+    from highway_srl.experiments.runs import check_output_folder, claim_outputs
+
+    check_output_folder(out)
+    with claim_outputs([out / name for name in DEMO_OUTPUTS], overwrite):
+        return _run_demo(out, steps, envs, episodes, seed, overwrite)
+
+
+def _run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int, overwrite: bool) -> Path:
     from highway_srl.agents.dqn import DQNConfig
     from highway_srl.agents.trainer import TrainConfig
-    from highway_srl.experiments.episodes import render_episode
+    from highway_srl.experiments.episodes import drawn, render_episode
     from highway_srl.experiments.evaluate import evaluate_run
     from highway_srl.experiments.train import train_run
 
@@ -36,7 +50,7 @@ def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0) -> 
             raise ValueError(f"{str(run)!r} holds a demo run with other settings ({_settings(have)}), not "
                              f"{_settings(want)}; choose another --out or move it away")
         print(f"reusing the demo run in {run}" if (run / "metrics.json").exists() else f"resuming the demo run in {run}")
-    elif holds_other_files(out):
+    elif holds_other_files(out, ignore=(f".{DEMO_OUTPUTS[0]}.lock",)):  # claim_outputs' lock
         raise ValueError(f"--out {str(out)!r} holds files but no demo run ({run}/config.json); choose an empty or new folder")
     out.mkdir(parents=True, exist_ok=True)
     if not (run / "metrics.json").exists():
@@ -50,11 +64,11 @@ def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0) -> 
 
     try:
         report = evaluate_run(run, traffics=list(TRAFFIC_LEVELS), episodes=episodes, out=out / "evaluation.json",
-                              progress=progress)
+                              progress=progress, overwrite=overwrite)
     finally:
         bar.close()
-    render_episode(run, None, "C", False, "idm", seed, out / "two-lane-C.gif", progress=True)
-    plot = _plot(report, out / "deployment.png")
+    render_episode(run, None, "C", False, "idm", seed, out / "two-lane-C.gif", progress=True, overwrite=overwrite)
+    plot = drawn(out / "deployment.png", lambda tmp: _plot(report, tmp), overwrite)
     lines = ["# highway-srl demo", "",
              f"MoE-RM-SRL trained for {metrics['env_steps_per_seed']:,} steps on two-lane level C "
              f"({metrics['wall_s']:.0f} s, {metrics['env_steps_per_s']:,.0f} env-steps/s) under the {cfg.profile} "
@@ -64,7 +78,7 @@ def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0) -> 
              "", f"Deployment, {episodes} episodes per level:", "",
              *deployment_table(report)]
     lines += ["", f"![deployment]({plot.name})", "", "Episode: `two-lane-C.gif`. Run folder: `run/`.", ""]
-    write_atomic(out / "report.md", "\n".join(lines).encode())
+    write_atomic(out / "report.md", "\n".join(lines).encode(), replace=overwrite)
     print("\n".join(lines))
     print(f"report: {out / 'report.md'}")
     return out / "report.md"

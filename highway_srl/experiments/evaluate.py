@@ -89,10 +89,12 @@ def summarise(results: dict[str, torch.Tensor], scenario: str) -> dict:
 
 def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, episodes: int = 100,
                  adversarial: bool | None = None, device: str = "cpu", backend: str = "ours", out: str | Path | None = None,
-                 seed: int = 0, progress=None, profile: str | None = None, adversary: str | None = None) -> dict:
+                 seed: int = 0, progress=None, profile: str | None = None, adversary: str | None = None,
+                 overwrite: bool = True) -> dict:
     """progress(done, total), if given, is called as the work advances (vector steps on our simulator,
     episodes on the others). profile, adversary: None = the run's own (config.json; runs written before
-    these settings existed were trained under "safe" and "mild"). On our simulator each level also gets
+    these settings existed were trained under "safe" and "mild"). out is written atomically, with overwrite
+    False never over a file that exists (FileExistsError). On our simulator each level also gets
     "collisions": what the ego's collisions were (experiments/collisions.py)."""
     policy = load_policy(run, scenario, device, profile)
     cfg, method, learner = policy.config, policy.method, policy.learner
@@ -132,7 +134,7 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
         } if seeds > 1 else None
         report["levels"][traffic] = level
     if out is not None:
-        write_json(Path(out), report)
+        write_json(Path(out), report, replace=overwrite)
     return report
 
 

@@ -33,10 +33,11 @@ def provenance() -> dict:
     return {"version": __version__, "commit": commit()}
 
 
-def write_json(path: Path, data) -> None:
-    """Write JSON atomically (temp file in the same folder, fsync, rename)."""
+def write_json(path: Path, data, replace: bool = True) -> None:
+    """Write JSON atomically (temp file in the same folder, fsync, rename; replace=False: never over a file
+    that exists, checkpoint.publish)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_atomic(path, (json.dumps(data, indent=2, default=str) + "\n").encode())
+    write_atomic(path, (json.dumps(data, indent=2, default=str) + "\n").encode(), replace)
 
 
 def is_int(value) -> bool:
@@ -130,19 +131,61 @@ def check_output_folder(path: Path, flag: str = "--out") -> None:
             return
 
 
-def check_output_file(path: Path, overwrite: bool = False, flag: str = "--out", force_flag: str = "--overwrite") -> None:
-    """Refuse, before any work, an output file path that is a folder, lies under a file, or exists (unless
-    overwrite)."""
-    if path.is_dir():
+def check_output_file(path: str | Path, overwrite: bool = False, flag: str = "--out", force_flag: str = "--overwrite") -> None:
+    """Refuse, before any work, an output file path that is a folder (or ends in a slash, as a folder's
+    name does), lies under a file, or exists (unless overwrite)."""
+    if str(path).endswith(("/", os.sep)) or Path(path).is_dir():
         raise ValueError(f"{flag} {str(path)!r} is a folder; give a file name")
+    path = Path(path)
     check_output_folder(path.parent, flag)
     if path.exists() and not overwrite:
         raise FileExistsError(f"{str(path)} exists; pass {force_flag} to replace it or {flag} to write elsewhere")
 
 
-def holds_other_files(folder: Path) -> bool:
-    """True if the folder exists and holds anything besides a run lock."""
-    return folder.is_dir() and any(p.name != LOCK_FILE for p in folder.iterdir())
+@contextlib.contextmanager
+def claim_outputs(paths: list[Path], overwrite: bool = False, flag: str = "--out"):
+    """Check output files (check_output_file) and hold a lock on them from the check until the block ends,
+    where they are written (write_atomic / publish with replace=overwrite): a second process that writes
+    the same output is refused at once. The lock is a flock on a hidden file beside the first output,
+    which the kernel drops when a process dies, so a killed writer never blocks the next one."""
+    for path in paths:
+        check_output_file(path, overwrite, flag)
+    first = Path(paths[0])
+    first.parent.mkdir(parents=True, exist_ok=True)
+    lock = first.parent / f".{first.name}.lock"
+    fd = _flock(lock)
+    if fd is None:
+        raise ValueError(f"{flag} {str(first)!r} is being written by another process; wait for it or choose another {flag}")
+    try:
+        for path in paths:  # again, under the lock: the other process may have written it meanwhile
+            check_output_file(path, overwrite, flag)
+        yield
+    finally:
+        lock.unlink(missing_ok=True)  # while held: a process that opened it before will find it replaced
+        os.close(fd)
+
+
+def _flock(lock: Path) -> int | None:
+    """A descriptor holding an exclusive flock on the file lock (created), None if another process holds it."""
+    while True:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            return None
+        try:
+            current = os.stat(lock).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            current = False
+        if current:
+            return fd
+        os.close(fd)  # the holder removed the file between our open and our lock: lock the new one
+
+
+def holds_other_files(folder: Path, ignore: tuple[str, ...] = ()) -> bool:
+    """True if the folder exists and holds anything besides a run lock (and the names in ignore)."""
+    return folder.is_dir() and any(p.name != LOCK_FILE and p.name not in ignore for p in folder.iterdir())
 
 
 @contextlib.contextmanager

@@ -2,7 +2,10 @@
 case is one line on stderr with exit status 2 and every file that was there unchanged (hashes before/after)."""
 
 import json
+import os
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -302,3 +305,106 @@ def test_a_cut_off_last_line_is_dropped_with_a_note(capsys, killed_run, tmp_path
     code, _, err = run(capsys, *RESUME, run_dir)
     assert code == 0 and "episodes.jsonl: dropped its cut-off last line (an interrupted write)" in err
     assert (run_dir / "episodes.jsonl").read_text().splitlines()[:2] == kept
+
+
+# ---------------------------------------------------------------- never lose a file
+RENDER = ("render", "--steps", "3", "--quiet", "--out")
+
+
+def test_render_refuses_an_existing_gif_or_png_unless_overwrite(capsys, tmp_path):
+    gif, png = tmp_path / "e.gif", tmp_path / "e.png"
+    png.write_bytes(b"a PNG that was there")
+    code, _, err = run(capsys, *RENDER, gif)
+    one_line_error(code, err, "e.png exists; pass --overwrite")
+    assert png.read_bytes() == b"a PNG that was there" and not gif.exists()
+    code, _, err = run(capsys, *RENDER, gif, "--overwrite")
+    assert code == 0, err
+    assert gif.read_bytes()[:6] == b"GIF89a" and png.read_bytes()[:4] == b"\x89PNG"
+    before = hashes(tmp_path)
+    code, _, err = run(capsys, *RENDER, gif)
+    one_line_error(code, err, "e.gif exists; pass --overwrite")
+    assert hashes(tmp_path) == before
+
+
+def test_a_drawing_that_fails_leaves_the_file_that_was_there(tmp_path):
+    from highway_srl.experiments.episodes import drawn
+
+    gif = tmp_path / "e.gif"
+    gif.write_bytes(b"the good GIF")
+
+    def full_disk(tmp: Path) -> None:
+        tmp.write_bytes(b"GIF89a half")
+        raise OSError(27, "File too large")
+
+    with pytest.raises(OSError):
+        drawn(gif, full_disk)
+    assert gif.read_bytes() == b"the good GIF" and [p.name for p in tmp_path.iterdir()] == ["e.gif"]
+
+
+def test_publish_without_replace_keeps_a_file_another_process_wrote_meanwhile(tmp_path):
+    from highway_srl.agents.checkpoint import write_atomic
+
+    path = tmp_path / "e.json"
+    path.write_text("theirs")
+    with pytest.raises(FileExistsError, match="written by another process meanwhile"):
+        write_atomic(path, b"ours", replace=False)
+    assert path.read_text() == "theirs" and [p.name for p in tmp_path.iterdir()] == ["e.json"]
+    write_atomic(tmp_path / "new.json", b"ours", replace=False)
+    assert (tmp_path / "new.json").read_text() == "ours"
+
+
+@pytest.mark.parametrize("out", ["newdir/", "newdir" + os.sep])
+def test_evaluate_out_ending_in_a_slash_is_refused_as_a_folder(capsys, finished_run, tmp_path, out):
+    code, _, err = run(capsys, "evaluate", finished_run, "--episodes", "1", "--out", str(tmp_path) + "/" + out)
+    one_line_error(code, err, "is a folder; give a file name")
+    assert not (tmp_path / "newdir").exists()
+
+
+HOLDER = """
+import sys, time
+from pathlib import Path
+from highway_srl.experiments.runs import claim_outputs
+with claim_outputs([Path(sys.argv[1])]):
+    print("held", flush=True)
+    time.sleep(120)
+"""
+
+
+def test_a_second_evaluate_onto_the_same_out_is_refused_while_the_first_writes(capsys, finished_run, tmp_path):
+    """A real second process holds the output (as a running evaluate does): this one is refused at once."""
+    out = tmp_path / "e.json"
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(out)], stdout=subprocess.PIPE, env=env, text=True)
+    try:
+        assert holder.stdout.readline() == "held\n"
+        code, _, err = run(capsys, "evaluate", finished_run, "--episodes", "1", "--out", out)
+        one_line_error(code, err, "is being written by another process")
+    finally:
+        holder.kill()
+        holder.wait()
+    assert not out.exists()
+    code, _, err = run(capsys, "evaluate", finished_run, "--episodes", "1", "--json", "--out", out)
+    assert code == 0 and out.exists(), err  # the holder died: its lock went with it
+    assert [p.name for p in tmp_path.iterdir()] == ["e.json"]
+
+
+def test_demo_again_refuses_to_replace_its_report_unless_overwrite(capsys, demo_run, tmp_path):
+    out = tmp_path / "demo"
+    shutil.copytree(demo_run, out)
+    (out / "report.md").write_text("the first demo's report")
+    before = hashes(out)
+    code, _, err = run(capsys, "demo", "--steps", "160", "--envs", "8", "--episodes", "2", "--out", out)
+    one_line_error(code, err, "report.md exists; pass --overwrite")
+    assert hashes(out) == before
+
+
+def test_play_into_a_folder_holding_a_runs_episodes_is_refused(finished_run, tmp_path):
+    from highway_srl.experiments.play import play
+
+    folder = tmp_path / "p"
+    folder.mkdir()
+    shutil.copy(finished_run / "episodes.jsonl", folder)
+    before = hashes(folder)
+    with pytest.raises(ValueError, match="holds files but no run"):
+        play("two-lane", "A", folder, wait_for_key=False)
+    assert hashes(folder) == before
