@@ -77,7 +77,7 @@ def _cmd_bench(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from highway_srl import commands  # the training / evaluation / study commands, argument types
-    from highway_srl.commands import adversary_name, non_negative, positive, profile_name
+    from highway_srl.commands import adversary_name, positive, profile_name, seed_number
 
     parser = Parser(prog="highway-srl", description="Safe RL of autonomous highway driving (MoE-RM-SRL).")
     parser.add_argument("--version", action="version", version=f"highway-srl {__version__}")
@@ -88,7 +88,7 @@ def build_parser() -> argparse.ArgumentParser:
     _scenario(p, default=None)
     p.add_argument("--policy", default="idm", help="built-in ego when no run is given: idm")
     p.add_argument("--backend", default="ours", help="simulator: ours, sumo, highway-env")
-    p.add_argument("--seed", type=non_negative, default=0)
+    p.add_argument("--seed", type=seed_number, default=0)
     p.add_argument("--steps", type=positive, default=320)
     p.add_argument("--out", default="episode.gif", help="GIF path; the PNG goes beside it")
     p.add_argument("--overwrite", action="store_true", help="replace the GIF and PNG if they exist")

@@ -46,7 +46,7 @@ def level(text: str) -> str:
 def _integer(text: str) -> int:
     """An integer, also written like 5e5 or 500_000 (the help texts quote the paper's 5e5)."""
     try:
-        return int(text)
+        return _bounded(int(text), text)
     except ValueError:
         pass
     try:
@@ -55,7 +55,26 @@ def _integer(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
     if not math.isfinite(value) or not value.is_integer():
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}")
-    return int(value)
+    return _bounded(int(value), text)
+
+
+MAX_INTEGER = 2**53  # no count or number of steps comes near; above it a float's integers have gaps
+
+
+def _bounded(value: int, text: str) -> int:
+    if abs(value) > MAX_INTEGER:
+        raise argparse.ArgumentTypeError(f"expected an integer of at most 2^53, got {text!r}")
+    return value
+
+
+def seed_number(text: str) -> int:
+    """A seed: an integer from 0 to trainer.MAX_SEED (its streams stay inside a 64-bit generator seed)."""
+    from highway_srl.agents.trainer import MAX_SEED
+
+    value = _integer(text)
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"expected a seed from 0 to {MAX_SEED:,}, got {text!r}")
+    return value
 
 
 def positive(text: str) -> int:
@@ -196,8 +215,12 @@ def _cmd_evaluate(args) -> int:
     from highway_srl.experiments.runs import claim_outputs, progress_bar
     from highway_srl.sim.world import check_device
 
-    read_model(args.run)  # the run, its config and its model (finite weights) checked before the bar starts
+    from highway_srl.experiments.evaluate import check_evaluation_memory
+
+    cfg = read_model(args.run)[0]  # the run, its config and its model (finite weights) checked before the bar
     check_device(args.device)
+    if args.backend == "ours":
+        check_evaluation_memory(cfg, args.traffic, args.episodes, args.device, True if args.adversarial else None)
     out = args.out or str(Path(args.run) / f"eval-{args.backend}.json")  # as given: "new/" names a folder
     with claim_outputs([out], args.overwrite):  # checked before the work, locked until written
         out = Path(out)
@@ -379,7 +402,7 @@ def _add_evaluate(sub) -> None:
     p.add_argument("--episodes", type=positive, default=100)
     p.add_argument("--backend", default="ours", help="ours, sumo or highway-env")
     p.add_argument("--device", default="cpu")
-    p.add_argument("--seed", type=non_negative, default=0, help="offset of the evaluation episodes' seeds")
+    p.add_argument("--seed", type=seed_number, default=0, help="offset of the evaluation episodes' seeds")
     p.add_argument("--profile", type=profile_name, default=None, help="control profile (default: the run's own)")
     p.add_argument("--adversary", type=adversary_name, default=None,
                    help="cut-ins of adversarial episodes (default: the run's own)")
@@ -394,7 +417,7 @@ def _add_play(sub, scenario_args) -> None:
     p = sub.add_parser("play", help="drive the ego yourself (the Manual baseline); needs pygame")
     scenario_args(p)
     p.add_argument("--episodes", type=positive, default=1)
-    p.add_argument("--seed", type=non_negative, default=0, help="traffic seed of the first episode")
+    p.add_argument("--seed", type=seed_number, default=0, help="traffic seed of the first episode")
     p.add_argument("--fps", type=positive_float, default=8.0, help="decisions per second (the paper's 8 Hz)")
     p.add_argument("--out", required=True, help="run folder: config.json, episodes.jsonl, metrics.json")
     p.set_defaults(func=_cmd_play)
@@ -405,7 +428,7 @@ def _add_demo(sub) -> None:
     p.add_argument("--steps", type=positive, default=30_000)
     p.add_argument("--envs", type=positive, default=16)
     p.add_argument("--episodes", type=positive, default=50)
-    p.add_argument("--seed", type=non_negative, default=0)
+    p.add_argument("--seed", type=seed_number, default=0)
     p.add_argument("--out", default="out", help="demo folder; a run already there is reused only if it was "
                    "trained with the same --steps, --envs and --seed")
     p.add_argument("--overwrite", action="store_true", help="replace the report, evaluation and pictures of an "

@@ -22,7 +22,10 @@ def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0, ove
     work and locked until written (runs.claim_outputs), each written atomically."""
     from highway_srl.experiments.runs import check_output_folder, claim_outputs
 
+    from highway_srl.experiments.bench import check_sim_memory
+
     check_output_folder(out)
+    check_sim_memory("two-lane", "F", episodes, "cpu", fewer="use fewer --episodes")  # the densest level's world
     with claim_outputs([out / name for name in DEMO_OUTPUTS], overwrite):
         return _run_demo(out, steps, envs, episodes, seed, overwrite)
 

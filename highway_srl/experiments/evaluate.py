@@ -13,6 +13,7 @@ import torch
 
 from highway_srl.agents.rollout import policy_step
 from highway_srl.constants import TRAFFIC_LEVELS
+from highway_srl.experiments.bench import check_sim_memory
 from highway_srl.experiments.collisions import Census, DecisionTrace
 from highway_srl.experiments.policy import load_policy
 from highway_srl.experiments.runs import provenance, write_json
@@ -108,6 +109,8 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
     if episodes < 1:
         raise ValueError(f"episodes must be positive, got {episodes}")
     seeds = len(cfg.seeds)
+    if backend == "ours":
+        check_evaluation_memory(cfg, traffics, episodes, device, adversarial)
     report = {"run": str(run), "method": cfg.method, "scenario": scenario, "adversarial": adversarial,
               "backend": backend, "episodes_per_level": episodes, "trained_seeds": list(cfg.seeds),
               "profile": method.profile, "adversary": adversary, "levels": {},
@@ -136,6 +139,14 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
     if out is not None:
         write_json(Path(out), report, replace=overwrite)
     return report
+
+
+def check_evaluation_memory(cfg, traffics, episodes: int, device: str, adversarial: bool | None = None) -> None:
+    """Refuse (one line, before any work) an evaluation whose world would not fit: on our simulator every
+    episode of a level, for every trained seed, is an env of one world (bench.check_sim_memory)."""
+    adversarial = cfg.adversarial if adversarial is None else adversarial
+    for traffic in traffics or [cfg.traffic]:
+        check_sim_memory(cfg.scenario, traffic, episodes * len(cfg.seeds), device, adversarial, "use fewer --episodes")
 
 
 def _run_backend(backend, scenario, traffic, adversarial, env_seeds, method, learner, episodes, on_episode=None):

@@ -25,6 +25,7 @@ from highway_srl.agents.checkpoint import (
 )
 from highway_srl.agents.dqn import UpdateLog
 from highway_srl.agents.trainer import OPTIONAL_KEYS, Episode, Trainer, TrainConfig, check_config
+from highway_srl.experiments.bench import check_train_memory
 from highway_srl.experiments.records import check_fields, read_episode_log, scalar_rows
 from highway_srl.experiments.runs import (
     append_jsonl, check_output_folder, holds_other_files, is_finite_number, is_int, lock_run, progress_bar, provenance,
@@ -315,6 +316,7 @@ def train_run(cfg: TrainConfig | None, out: str | Path, resume: bool = False, ch
         cfg = train_config(out)
         checkpoint_every = saved_checkpoint_every(out, checkpoint_every)
     check_config(cfg)  # a setting no run can have is refused before any folder is made
+    check_train_memory(cfg)  # and one that would not fit in memory
     out.mkdir(parents=True, exist_ok=True)
     with lock_run(out):
         _check_target(out, resume)  # again, under the lock: another process may have finished meanwhile
@@ -526,6 +528,7 @@ def bench_train_form(method: str, scenario: str, traffic: str, envs: int, steps:
                       compile_unrolled=unrolled,
                       dqn=DQNConfig(learning_starts=0, batch_size=batch_size,
                                     buffer_capacity=buffer_capacity or DQNConfig.buffer_capacity))
+    check_train_memory(cfg)
     trainer = Trainer(cfg, drain_every=DRAIN_EVERY)
     sync = torch.cuda.synchronize if trainer.device.type == "cuda" else (lambda: None)
     # fill every acting member's buffer past one batch so updates run from the first timed step

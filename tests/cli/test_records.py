@@ -408,3 +408,43 @@ def test_play_into_a_folder_holding_a_runs_episodes_is_refused(finished_run, tmp
     with pytest.raises(ValueError, match="holds files but no run"):
         play("two-lane", "A", folder, wait_for_key=False)
     assert hashes(folder) == before
+
+
+# ---------------------------------------------------------------- bounded work
+@pytest.mark.parametrize("argv, needle", [
+    (["evaluate", "RUN", "--episodes", "1e30"], "at most 2^53"),
+    (["demo", "--episodes", "1e30"], "at most 2^53"),
+    (["bench", "train", "--seeds", "1e30"], "at most 2^53"),
+    (["render", "--seed", str(2**40)], "expected a seed from 0 to"),
+    (["evaluate", "RUN", "--seed", str(2**64)], "at most 2^53"),
+    (["train", "--seeds", f"0,{2**63}", "--out", "OUT"], "seeds must be distinct integers from 0 to"),
+])
+def test_absurd_numbers_are_one_line_before_any_work(capsys, finished_run, tmp_path, argv, needle):
+    argv = [str(finished_run) if a == "RUN" else str(tmp_path / "o") if a == "OUT" else a for a in argv]
+    code, _, err = run(capsys, *argv)
+    one_line_error(code, err, needle)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["train", "--envs", "1000000", "--out", "OUT"], "training 1,000,000 envs"),
+    (["bench", "train", "--seeds", "200", "--envs", "16"], "200 replay buffers"),
+    (["evaluate", "RUN", "--episodes", "5e6", "--out", "OUT"], "use fewer --episodes"),
+    (["demo", "--episodes", "5e6", "--out", "OUT"], "use fewer --episodes"),
+])
+def test_work_that_would_not_fit_in_memory_is_refused_before_it_starts(capsys, monkeypatch, finished_run, tmp_path,
+                                                                      argv, needle):
+    from highway_srl.experiments import bench
+
+    monkeypatch.setattr(bench, "available_bytes", lambda device: 2**30)  # 1 GiB free, whatever the machine has
+    argv = [str(finished_run) if a == "RUN" else str(tmp_path / "o") if a == "OUT" else a for a in argv]
+    code, _, err = run(capsys, *argv)
+    one_line_error(code, err, needle)
+    assert "GiB" in err and list(tmp_path.iterdir()) == []
+
+
+def test_the_training_estimate_lets_a_tiny_run_through():
+    from highway_srl.experiments.bench import check_train_memory
+
+    need = check_train_memory(TrainConfig(traffic="A", steps=400, envs=8, dqn=DQNConfig(buffer_capacity=2048)))
+    assert 0 < need < 2**28
