@@ -7,7 +7,8 @@ Run folder layout:
   scalars.csv        a row every 2,000 env steps: speed, ε, return, collision-free rate, loss, Q, TD error, expert
                      usage (TrainingLog); tb/ the same and per-episode points in TensorBoard, if it is installed
   model/             final weights (model.safetensors + meta.json), what evaluate and render load
-  resume/            full state at the last checkpoint (weights, optimiser, buffers, worlds, RNG); removed at the end
+  resume/            full state at the last checkpoint (weights, optimiser, buffers, worlds, RNG; meta.json also the
+                     training log's cadence and running window and the episodes logged); removed at the end
   metrics.json       T_c, T_r, rise time, wall time, steps/s (per seed and their mean)
 """
 
@@ -120,7 +121,9 @@ class TrainingLog:
     A value that does not exist yet (no episode has ended, no update was made) is an empty cell and no
     TensorBoard point. TensorBoard also gets a point per finished episode at its env step: episode/return,
     episode/collision, episode/avg_speed (episodes.jsonl holds the same with the seed). Reading the values
-    is the row's only host read (the learner's stats are summed on the device).
+    is the row's host read (the learner's stats are summed on the device), with check_finite's of the
+    weights beside it. Its state (state(), restore()) is part of the resume checkpoint, so that a resumed
+    run writes the rows an uninterrupted one does.
     """
 
     def __init__(self, out: Path, trainer: Trainer, keep_until: int | None = None, state: dict | None = None,
@@ -445,7 +448,7 @@ def check_finite(trainer: Trainer, values: dict, since: int) -> None:
         bad = f"the policy's {key}"
     if bad is not None:
         raise TrainingDiverged(f"training stopped at env step {step}: {bad} became NaN or infinite after step "
-                               f"{since} (checked at each scalars.csv row and checkpoint); nothing after it is saved")
+                               f"{since} (checked at each scalars.csv row and checkpoint); the run stops, its last checkpoint is kept")
 
 
 def member_name(trainer: Trainer, member: int) -> str:

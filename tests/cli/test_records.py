@@ -353,11 +353,11 @@ def test_publish_without_replace_keeps_a_file_another_process_wrote_meanwhile(tm
     assert (tmp_path / "new.json").read_text() == "ours"
 
 
-@pytest.mark.parametrize("out", ["newdir/", "newdir" + os.sep])
+@pytest.mark.parametrize("out", ["newdir/", "new/dir/"])
 def test_evaluate_out_ending_in_a_slash_is_refused_as_a_folder(capsys, finished_run, tmp_path, out):
     code, _, err = run(capsys, "evaluate", finished_run, "--episodes", "1", "--out", str(tmp_path) + "/" + out)
     one_line_error(code, err, "is a folder; give a file name")
-    assert not (tmp_path / "newdir").exists()
+    assert not (tmp_path / "newdir").exists() and not (tmp_path / "new").exists()
 
 
 HOLDER = """
