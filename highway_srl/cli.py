@@ -32,16 +32,16 @@ def _scenario(p: argparse.ArgumentParser, default: str | None = "two-lane") -> N
 
 def _cmd_render(args) -> int:
     from highway_srl.experiments.episodes import render_episode
-    from highway_srl.experiments.runs import check_output_folder, run_folder
+    from highway_srl.experiments.runs import claim_outputs, run_folder
 
     if args.run is not None:
         run_folder(args.run)
-    check_output_folder(Path(args.out).parent)
-    paths = render_episode(
-        run=args.run, scenario=args.scenario, traffic=args.traffic, adversarial=args.adversarial,
-        policy=args.policy, seed=args.seed, out=Path(args.out), steps=args.steps, backend=args.backend,
-        progress=not args.quiet, profile=args.profile, adversary=args.adversary,
-    )
+    with claim_outputs([args.out, Path(args.out).with_suffix(".png")], args.overwrite):  # locked until written
+        paths = render_episode(
+            run=args.run, scenario=args.scenario, traffic=args.traffic, adversarial=args.adversarial,
+            policy=args.policy, seed=args.seed, out=Path(args.out), steps=args.steps, backend=args.backend,
+            progress=not args.quiet, profile=args.profile, adversary=args.adversary, overwrite=args.overwrite,
+        )
     for p in paths:
         print(p)
     return 0
@@ -77,7 +77,7 @@ def _cmd_bench(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from highway_srl import commands  # the training / evaluation / study commands, argument types
-    from highway_srl.commands import adversary_name, non_negative, positive, profile_name
+    from highway_srl.commands import adversary_name, positive, profile_name, seed_number
 
     parser = Parser(prog="highway-srl", description="Safe RL of autonomous highway driving (MoE-RM-SRL).")
     parser.add_argument("--version", action="version", version=f"highway-srl {__version__}")
@@ -88,9 +88,10 @@ def build_parser() -> argparse.ArgumentParser:
     _scenario(p, default=None)
     p.add_argument("--policy", default="idm", help="built-in ego when no run is given: idm")
     p.add_argument("--backend", default="ours", help="simulator: ours, sumo, highway-env")
-    p.add_argument("--seed", type=non_negative, default=0)
+    p.add_argument("--seed", type=seed_number, default=0)
     p.add_argument("--steps", type=positive, default=320)
     p.add_argument("--out", default="episode.gif", help="GIF path; the PNG goes beside it")
+    p.add_argument("--overwrite", action="store_true", help="replace the GIF and PNG if they exist")
     p.add_argument("--profile", type=profile_name, default=None, help="control profile (default: the run's own)")
     p.add_argument("--adversary", type=adversary_name, default=None,
                    help="cut-ins with --adversarial (default: the run's own; paper without a run)")

@@ -46,7 +46,7 @@ def level(text: str) -> str:
 def _integer(text: str) -> int:
     """An integer, also written like 5e5 or 500_000 (the help texts quote the paper's 5e5)."""
     try:
-        return int(text)
+        return _bounded(int(text), text)
     except ValueError:
         pass
     try:
@@ -55,7 +55,26 @@ def _integer(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
     if not math.isfinite(value) or not value.is_integer():
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}")
-    return int(value)
+    return _bounded(int(value), text)
+
+
+MAX_INTEGER = 2**53  # no count or number of steps comes near; above it a float's integers have gaps
+
+
+def _bounded(value: int, text: str) -> int:
+    if abs(value) > MAX_INTEGER:
+        raise argparse.ArgumentTypeError(f"expected an integer of at most 2^53, got {text!r}")
+    return value
+
+
+def seed_number(text: str) -> int:
+    """A seed: an integer from 0 to trainer.MAX_SEED (its streams stay inside a 64-bit generator seed)."""
+    from highway_srl.agents.trainer import MAX_SEED
+
+    value = _integer(text)
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"expected a seed from 0 to {MAX_SEED:,}, got {text!r}")
+    return value
 
 
 def positive(text: str) -> int:
@@ -144,6 +163,8 @@ def _cmd_train(args) -> int:
     from highway_srl.experiments.train import finished, last_checkpoint_step, train_run
 
     out = Path(args.out)
+    if args.drop_damaged and not args.resume:
+        raise ValueError("--drop-damaged is for --resume (a new run has no logs to cut)")
     if args.resume:
         cfg = None
         if out.is_dir() and finished(out):
@@ -157,7 +178,7 @@ def _cmd_train(args) -> int:
                   f"{cfg.steps:,}: this run takes no gradient step (set --learning-starts)", file=sys.stderr)
     try:
         metrics = train_run(cfg, out, resume=args.resume, checkpoint_every=args.checkpoint_every,
-                            progress=not args.quiet)
+                            progress=not args.quiet, drop_damaged=args.drop_damaged)
     except KeyboardInterrupt:
         step = last_checkpoint_step(out)
         where = f"its last checkpoint (step {step:,})" if step is not None else "step 0 (no checkpoint was written yet)"
@@ -190,15 +211,28 @@ def format_report(report: dict) -> str:
 
 
 def _cmd_evaluate(args) -> int:
-    from highway_srl.experiments.evaluate import evaluate_run
-    from highway_srl.experiments.runs import check_output_file, progress_bar, run_folder
+    from highway_srl.experiments.policy import read_model
+    from highway_srl.experiments.runs import claim_outputs, progress_bar
     from highway_srl.sim.world import check_device
 
-    run_folder(args.run)
+    from highway_srl.experiments.evaluate import check_evaluation_memory
+
+    cfg = read_model(args.run)[0]  # the run, its config and its model (finite weights) checked before the bar
     check_device(args.device)
-    out = Path(args.out) if args.out else Path(args.run) / f"eval-{args.backend}.json"
-    check_output_file(out, overwrite=args.overwrite)  # before the work, not after it
-    bar = progress_bar(1, "evaluate", enabled=not args.json)
+    if args.backend == "ours":
+        check_evaluation_memory(cfg, args.traffic, args.episodes, args.device, True if args.adversarial else None)
+    out = args.out or str(Path(args.run) / f"eval-{args.backend}.json")  # as given: "new/" names a folder
+    with claim_outputs([out], args.overwrite):  # checked before the work, locked until written
+        out = Path(out)
+        report = _evaluate(args, out, progress_bar(1, "evaluate", enabled=not args.json))
+    print(json.dumps(report, indent=2) if args.json else format_report(report))
+    if not args.json:
+        print(f"written to {out}")
+    return 0
+
+
+def _evaluate(args, out: Path, bar) -> dict:
+    from highway_srl.experiments.evaluate import evaluate_run
 
     def progress(done: int, total: int) -> None:
         if bar is not None:
@@ -209,20 +243,18 @@ def _cmd_evaluate(args) -> int:
         report = evaluate_run(args.run, scenario=args.scenario, traffics=args.traffic, episodes=args.episodes,
                               adversarial=True if args.adversarial else None, device=args.device,
                               backend=args.backend, out=out, seed=args.seed, progress=progress,
-                              profile=args.profile, adversary=args.adversary)
+                              profile=args.profile, adversary=args.adversary, overwrite=args.overwrite)
     finally:
         if bar is not None:
             bar.close()
-    print(json.dumps(report, indent=2) if args.json else format_report(report))
-    if not args.json:
-        print(f"written to {out}")
-    return 0
+    return report
 
 
 def _cmd_demo(args) -> int:
     from highway_srl.experiments.demo import run_demo
 
-    run_demo(Path(args.out), steps=args.steps, envs=args.envs, episodes=args.episodes, seed=args.seed)
+    run_demo(Path(args.out), steps=args.steps, envs=args.envs, episodes=args.episodes, seed=args.seed,
+             overwrite=args.overwrite)
     return 0
 
 
@@ -352,6 +384,9 @@ def _add_train(sub, scenario_args) -> None:
     p.add_argument("--checkpoint-every", type=positive, default=50_000, help="env steps between resume checkpoints")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint, "
                    "with every setting it was started with (config.json); the other options are then ignored")
+    p.add_argument("--drop-damaged", action="store_true",
+                   help="with --resume: where episodes.jsonl or scalars.csv has a damaged line, keep the rows before "
+                        "it and continue (says how many were dropped) instead of refusing")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--out", required=True, help="run folder")
     p.set_defaults(func=_cmd_train)
@@ -367,7 +402,7 @@ def _add_evaluate(sub) -> None:
     p.add_argument("--episodes", type=positive, default=100)
     p.add_argument("--backend", default="ours", help="ours, sumo or highway-env")
     p.add_argument("--device", default="cpu")
-    p.add_argument("--seed", type=non_negative, default=0, help="offset of the evaluation episodes' seeds")
+    p.add_argument("--seed", type=seed_number, default=0, help="offset of the evaluation episodes' seeds")
     p.add_argument("--profile", type=profile_name, default=None, help="control profile (default: the run's own)")
     p.add_argument("--adversary", type=adversary_name, default=None,
                    help="cut-ins of adversarial episodes (default: the run's own)")
@@ -382,7 +417,7 @@ def _add_play(sub, scenario_args) -> None:
     p = sub.add_parser("play", help="drive the ego yourself (the Manual baseline); needs pygame")
     scenario_args(p)
     p.add_argument("--episodes", type=positive, default=1)
-    p.add_argument("--seed", type=non_negative, default=0, help="traffic seed of the first episode")
+    p.add_argument("--seed", type=seed_number, default=0, help="traffic seed of the first episode")
     p.add_argument("--fps", type=positive_float, default=8.0, help="decisions per second (the paper's 8 Hz)")
     p.add_argument("--out", required=True, help="run folder: config.json, episodes.jsonl, metrics.json")
     p.set_defaults(func=_cmd_play)
@@ -393,9 +428,11 @@ def _add_demo(sub) -> None:
     p.add_argument("--steps", type=positive, default=30_000)
     p.add_argument("--envs", type=positive, default=16)
     p.add_argument("--episodes", type=positive, default=50)
-    p.add_argument("--seed", type=non_negative, default=0)
+    p.add_argument("--seed", type=seed_number, default=0)
     p.add_argument("--out", default="out", help="demo folder; a run already there is reused only if it was "
                    "trained with the same --steps, --envs and --seed")
+    p.add_argument("--overwrite", action="store_true", help="replace the report, evaluation and pictures of an "
+                   "earlier demo in --out (refused without it)")
     p.set_defaults(func=_cmd_demo)
 
 

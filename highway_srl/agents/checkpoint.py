@@ -39,11 +39,12 @@ def _umask() -> int:
     return mask
 
 
-def write_atomic(path: Path, data: bytes) -> None:
+def write_atomic(path: Path, data: bytes, replace: bool = True) -> None:
     """Write bytes so that a reader sees the old file or the new one, never a torn one.
 
     The file gets the mode a plain open() would give (0666 minus the umask, usually 0644): mkstemp's
-    0600 would hide results from colleagues on a shared machine.
+    0600 would hide results from colleagues on a shared machine. replace=False: never over a file that
+    exists (publish), a FileExistsError instead.
     """
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
@@ -52,11 +53,33 @@ def write_atomic(path: Path, data: bytes) -> None:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp, path)
+        publish(Path(tmp), path, replace)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def temp_beside(path: Path) -> Path:
+    """A hidden temporary name in path's folder with path's suffix (writers that pick the format by it)."""
+    return path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+
+
+def publish(tmp: Path, path: Path, replace: bool = True) -> None:
+    """Move a finished temporary file (in path's folder) onto path in one step: os.replace, or with
+    replace=False a hard link that fails if path exists (O_EXCL's rule: a file another process wrote
+    meanwhile is kept, FileExistsError). tmp is gone afterwards either way."""
+    try:
+        if replace:
+            os.replace(tmp, path)
+        else:
+            try:
+                os.link(tmp, path)
+            except FileExistsError:
+                raise FileExistsError(f"{path} was written by another process meanwhile; it is kept, this "
+                                      "result is not written (pass --overwrite to replace it)") from None
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def _fsync_dir(path: Path) -> None:
@@ -120,6 +143,17 @@ def load_checkpoint(
         first_line = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise CheckpointError(f"{model_path} is truncated or corrupt: {first_line}") from None
     return tensors, meta
+
+
+def first_non_finite(tensors: dict[str, torch.Tensor], nan_only: tuple[str, ...] = ()) -> str | None:
+    """The first key whose floating-point tensor holds a NaN or an infinity (for keys starting with one of
+    nan_only: a NaN; there an infinity can be a value); None if every one is finite. One host read per tensor."""
+    for key, value in tensors.items():
+        if value.is_floating_point():
+            bad = value.isnan() if key.startswith(nan_only) else ~value.isfinite()
+            if bool(bad.any()):
+                return key
+    return None
 
 
 # One key scheme for a trained policy's tensors, in the final model/ and in resume/ alike:

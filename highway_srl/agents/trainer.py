@@ -68,6 +68,8 @@ class TrainConfig:
     @staticmethod
     def from_dict(d: dict) -> "TrainConfig":
         """A config from its dict; one written before a setting existed reads as what it ran under (LEGACY)."""
+        if not isinstance(d, dict):
+            raise ValueError(f"config must be an object of settings, got {type(d).__name__}")
         known = set(TrainConfig.__dataclass_fields__)
         unknown = sorted(set(d) - known)
         if unknown:
@@ -78,14 +80,19 @@ class TrainConfig:
         if "replay_ratio" not in d:  # before replay_ratio: updates_per_step (default then 4) per acting member
             d["replay_ratio"] = None
             d.setdefault("updates_per_step", 4)
-        dqn = d.pop("dqn", {}) or {}
+        dqn = d.pop("dqn", {})
+        if not isinstance(dqn, dict):
+            raise ValueError(f"config dqn must be an object of DQN settings, got {dqn!r}")
         unknown = sorted(set(dqn) - set(DQNConfig.__dataclass_fields__))
         if unknown:
             raise ValueError(f"unknown dqn config keys {unknown}; allowed: {sorted(DQNConfig.__dataclass_fields__)}")
-        if "adam_betas" in dqn:
+        if isinstance(dqn.get("adam_betas"), list):
             dqn["adam_betas"] = tuple(dqn["adam_betas"])
-        d["seeds"] = tuple(d.get("seeds", (0,)))
-        return TrainConfig(dqn=DQNConfig(**dqn), **d)
+        if isinstance(d.get("seeds", ()), list):
+            d["seeds"] = tuple(d["seeds"])
+        cfg = TrainConfig(dqn=DQNConfig(**dqn), **d)
+        check_config(cfg)
+        return cfg
 
 
 # What a config.json written before these keys existed ran under: the rule layer's profile was today's
@@ -94,10 +101,17 @@ class TrainConfig:
 LEGACY = {"profile": "safe", "adversary": "mild", "static": False, "compile": False}
 
 
+MAX_SEED = 2**32 - 1  # a seed's env streams (seed x 1,000,003 + env) stay well inside a 64-bit generator seed
+
+
 def check_config(cfg: TrainConfig) -> None:
-    """ValueError in one line for settings no run can have."""
+    """ValueError in one line, naming the setting, for settings no run can have: wrong types (a JSON
+    config's "4000" or null), NaN or infinite numbers, and values out of range."""
+    _check_types(cfg)
     if cfg.steps < 1 or cfg.envs < 1:
         raise ValueError("steps and envs must be positive")
+    if not cfg.seeds or len(set(cfg.seeds)) != len(cfg.seeds) or not all(0 <= s <= MAX_SEED for s in cfg.seeds):
+        raise ValueError(f"seeds must be distinct integers from 0 to {MAX_SEED}, got {list(cfg.seeds)!r}")
     control_profile(cfg.profile)
     if cfg.adversary not in ADVERSARIES:
         raise ValueError(f"unknown adversary {cfg.adversary!r}; choose one of {', '.join(ADVERSARIES)}")
@@ -109,14 +123,75 @@ def check_config(cfg: TrainConfig) -> None:
         raise ValueError(f"replay_ratio must be a non-negative number, got {cfg.replay_ratio!r}")
     if cfg.updates_per_step is not None and cfg.updates_per_step < 0:
         raise ValueError(f"updates_per_step must be non-negative, got {cfg.updates_per_step!r}")
+    check_dqn_config(cfg.dqn)
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _check_types(cfg: TrainConfig) -> None:
+    """Each setting of the type it must have (a config read from JSON can hold anything)."""
+    kinds = {"method": str, "scenario": str, "traffic": str, "adversarial": bool, "steps": int, "envs": int,
+             "device": str, "profile": str, "adversary": str, "replay_ratio": (float, None),
+             "updates_per_step": (int, None), "share_transitions": bool, "static": (bool, None),
+             "compile": (bool, str), "compile_unrolled": bool, "dqn": DQNConfig, "options": dict}
+    for name, kind in kinds.items():
+        value, kinds_ok = getattr(cfg, name), kind if isinstance(kind, tuple) else (kind,)
+        if not any(_of_kind(value, k) for k in kinds_ok):
+            want = " or ".join("null" if k is None else k.__name__ for k in kinds_ok)
+            raise ValueError(f"config {name} must be {want}, got {value!r}")
+    if not isinstance(cfg.seeds, (tuple, list)) or not all(_is_int(s) for s in cfg.seeds):
+        raise ValueError(f"config seeds must be a list of integers, got {cfg.seeds!r}")
+
+
+def _of_kind(value, kind) -> bool:
+    """value is of kind (None: null; int: an integer, not a bool; float: any number but a bool)."""
+    if kind is None:
+        return value is None
+    if kind is int:
+        return _is_int(value)
+    if kind is float:
+        return _is_number(value)
+    return isinstance(value, kind)
+
+
+# DQNConfig's numbers: (integer?, lowest, highest); every one finite
+DQN_RANGES = {"lr": (False, 0.0, 1.0), "gamma": (False, 0.0, 1.0), "batch_size": (True, 1, 2**20),
+              "total_steps": (True, 1, 2**53), "hidden": (True, 1, 2**16), "buffer_capacity": (True, 1, 2**40),
+              "learning_starts": (True, 0, 2**53), "target_update_interval": (True, 1, 2**53),
+              "eps_start": (False, 0.0, 1.0), "eps_end": (False, 0.0, 1.0), "exploration_fraction": (False, 0.0, 1.0),
+              "grad_clip_norm": (False, -math.inf, math.inf), "adam_eps": (False, 0.0, 1.0)}
+
+
+def check_dqn_config(dqn: DQNConfig) -> None:
+    """ValueError in one line naming the DQN setting that is of the wrong type, not finite or out of range."""
+    for name, (integer, lo, hi) in DQN_RANGES.items():
+        value = getattr(dqn, name)
+        if not (_is_int(value) if integer else _is_number(value)) or not math.isfinite(value):
+            raise ValueError(f"config dqn.{name} must be a finite {'integer' if integer else 'number'}, got {value!r}")
+        if not lo <= value <= hi or (name in ("lr", "adam_eps") and value == 0):
+            raise ValueError(f"config dqn.{name} must be {'above' if name in ('lr', 'adam_eps') else 'at least'} "
+                             f"{lo} and at most {hi}, got {value!r}")
+    betas = dqn.adam_betas
+    if not (isinstance(betas, (tuple, list)) and len(betas) == 2 and all(_is_number(b) and 0 <= b < 1 for b in betas)):
+        raise ValueError(f"config dqn.adam_betas must be two numbers in [0, 1), got {betas!r}")
+    if not isinstance(dqn.huber, bool):
+        raise ValueError(f"config dqn.huber must be true or false, got {dqn.huber!r}")
 
 
 # resume/ keys of the episode accumulators (EpisodeStats field -> key), kept from the first checkpoints
 EPISODE_KEYS = {"ret": "episode.ep_return", "deploy": "episode.ep_deploy", "speed": "episode.ep_speed",
                 "length": "episode.ep_len", "collision": "episode.ep_collision", "success": "episode.ep_success",
                 "rm": "episode.ep_rm_return"}
+# the update log's sums since the last row of scalars.csv (a resumed run's next row averages the same updates)
+UPDATE_LOG_KEYS = ("counters.update_log_sums", "counters.update_log_count")
 # keys a resume checkpoint may lack (written before they existed); the loader fills them in
-OPTIONAL_KEYS = frozenset({"episode.ep_rm_return"})
+OPTIONAL_KEYS = frozenset({"episode.ep_rm_return", *UPDATE_LOG_KEYS})
 
 
 @dataclass
@@ -190,7 +265,7 @@ class Trainer:
         self.step_count = torch.zeros((), dtype=torch.long, device=self.device)
         # acting member counts, slot 0 = the final fallback (no expert)
         self.usage = torch.zeros(self.method.num_members + 1, dtype=torch.long, device=self.device)
-        self.update_log = UpdateLog(self.device)  # loss, Q, TD error since the last log (not checkpointed)
+        self.update_log = UpdateLog(self.device)  # loss, Q, TD error since the last row of scalars.csv
         # replay_ratio: updates owed to each member, carried over while below one (fractional ratios)
         self.update_credit = torch.zeros(self.method.num_members, dtype=torch.float64, device=self.device)
         # the deployment reward R_r is tracked for every method alike
@@ -376,6 +451,7 @@ class Trainer:
         state["counters.usage"] = self.usage
         if self.config.replay_ratio is not None:  # legacy configs (updates_per_step) carry no credit
             state["counters.update_credit"] = self.update_credit
+        state[UPDATE_LOG_KEYS[0]], state[UPDATE_LOG_KEYS[1]] = self.update_log.sums, self.update_log.count
         return {k: v.detach().contiguous() for k, v in state.items()}
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
@@ -393,6 +469,9 @@ class Trainer:
         self.usage = state["counters.usage"].to(self.device).clone()
         if "counters.update_credit" in state:
             self.update_credit = state["counters.update_credit"].to(self.device, torch.float64).clone()
+        if UPDATE_LOG_KEYS[0] in state:  # copied in place: the compiled step holds these tensors
+            self.update_log.sums.copy_(state[UPDATE_LOG_KEYS[0]])
+            self.update_log.count.copy_(state[UPDATE_LOG_KEYS[1]])
         self.method.load_state_dict(method)
         self.method.start(self.batch, self.device, self.static)
         self._view = self.layer.observe(self.world)

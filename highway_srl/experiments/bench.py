@@ -58,16 +58,44 @@ def available_bytes(device: str | torch.device) -> int | None:
     return None
 
 
-def check_sim_memory(scenario: str, traffic: str, envs: int, device: str, adversarial: bool = False) -> int:
-    """Estimated peak bytes of `bench sim`; refuses (one line) what would not fit, before allocating it."""
+def check_sim_memory(scenario: str, traffic: str, envs: int, device: str, adversarial: bool = False,
+                     fewer: str = "use fewer --envs") -> int:
+    """Estimated peak bytes of stepping `envs` worlds (`bench sim`, evaluate's episodes); refuses (one line)
+    what would not fit, before allocating it (fewer: what the line advises)."""
+    need = int(world_bytes_per_env(scenario, traffic, adversarial) * STEP_MEMORY_FACTOR * envs)
+    check_memory(need, device, f"{envs:,} envs need about {need / 2**30:.1f} GiB ({need / envs / 1024:.0f} KiB "
+                 "per env)", fewer)
+    return need
+
+
+def check_memory(need: int, device: str, what: str, fewer: str) -> None:
+    """ValueError in one line (what, the device's free memory, fewer) if need bytes do not fit on device."""
     from highway_srl.sim.world import check_device
 
     dev = check_device(device)
-    need = int(world_bytes_per_env(scenario, traffic, adversarial) * STEP_MEMORY_FACTOR * envs)
     free = available_bytes(dev)
     if free is not None and need > free:
-        raise ValueError(f"{envs:,} envs need about {need / 2**30:.1f} GiB ({need / envs / 1024:.0f} KiB per env) "
-                         f"but {dev} has {free / 2**30:.1f} GiB available; use fewer --envs")
+        raise ValueError(f"{what} but {dev} has {free / 2**30:.1f} GiB available; {fewer}")
+
+
+def check_train_memory(cfg) -> int:
+    """Estimated peak bytes of training cfg (a TrainConfig): the worlds' step (envs x seeds), the replay
+    buffers (every member's, allocated at the start) and the networks with their targets and Adam
+    moments; refuses (one line) what would not fit, before any of it is allocated."""
+    from highway_srl.agents.registry import make_method
+    from highway_srl.constants import OBS_DIM
+
+    method = make_method(cfg.method, cfg.scenario, len(cfg.seeds), cfg.options, cfg.profile)
+    envs = cfg.envs * len(cfg.seeds)
+    world = world_bytes_per_env(cfg.scenario, cfg.traffic, cfg.adversarial) * STEP_MEMORY_FACTOR * envs
+    row = (2 * OBS_DIM + 1 + int(method.uses_cost)) * 4 + 8 + 1  # obs, next_obs, reward, cost; action; done
+    replay = method.num_members * cfg.dqn.buffer_capacity * row
+    h = cfg.dqn.hidden
+    networks = 4 * 4 * method.num_members * (OBS_DIM * h + h * h + h * method.out_dim + 2 * h + method.out_dim)
+    need = int(world + replay + networks)
+    check_memory(need, cfg.device, f"training {envs:,} envs ({cfg.envs:,} x {len(cfg.seeds)} seeds) with "
+                 f"{method.num_members} replay buffers of {cfg.dqn.buffer_capacity:,} needs about "
+                 f"{need / 2**30:.1f} GiB", "use fewer --envs or seeds")
     return need
 
 

@@ -13,14 +13,32 @@ from highway_srl.constants import TRAFFIC_LEVELS
 DEMO_REPLAY_RATIO = 0.25
 
 
-def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0) -> Path:
+# what a demo writes besides its run folder (refused if there, unless overwrite)
+DEMO_OUTPUTS = ("report.md", "evaluation.json", "two-lane-C.gif", "two-lane-C.png", "deployment.png")
+
+
+def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0, overwrite: bool = False) -> Path:
+    """Train (or reuse the run in OUT/run), evaluate, render and report; the outputs are checked before any
+    work and locked until written (runs.claim_outputs), each written atomically."""
+    from highway_srl.experiments.runs import check_output_folder, claim_outputs
+
+    from highway_srl.experiments.bench import check_sim_memory
+
+    check_output_folder(out)
+    check_sim_memory("two-lane", "F", episodes, "cpu", fewer="use fewer --episodes")  # the densest level's world
+    with claim_outputs([out / name for name in DEMO_OUTPUTS], overwrite):
+        return _run_demo(out, steps, envs, episodes, seed, overwrite)
+
+
+def _run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int, overwrite: bool) -> Path:
     from highway_srl.agents.dqn import DQNConfig
     from highway_srl.agents.trainer import TrainConfig
-    from highway_srl.experiments.episodes import render_episode
+    from highway_srl.experiments.episodes import drawn, render_episode
     from highway_srl.experiments.evaluate import evaluate_run
     from highway_srl.experiments.train import train_run
 
-    from highway_srl.experiments.runs import check_output_folder, holds_other_files, progress_bar, read_json, run_config
+    from highway_srl.experiments.records import read_metrics
+    from highway_srl.experiments.runs import check_output_folder, holds_other_files, progress_bar, run_config
 
     run = out / "run"
     cfg = TrainConfig(steps=steps, envs=envs, seeds=(seed,), replay_ratio=DEMO_REPLAY_RATIO,
@@ -35,12 +53,12 @@ def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0) -> 
             raise ValueError(f"{str(run)!r} holds a demo run with other settings ({_settings(have)}), not "
                              f"{_settings(want)}; choose another --out or move it away")
         print(f"reusing the demo run in {run}" if (run / "metrics.json").exists() else f"resuming the demo run in {run}")
-    elif holds_other_files(out):
+    elif holds_other_files(out, ignore=(f".{DEMO_OUTPUTS[0]}.lock",)):  # claim_outputs' lock
         raise ValueError(f"--out {str(out)!r} holds files but no demo run ({run}/config.json); choose an empty or new folder")
     out.mkdir(parents=True, exist_ok=True)
     if not (run / "metrics.json").exists():
         train_run(cfg, run, resume=(run / "config.json").exists())
-    metrics = read_json(run / "metrics.json")
+    metrics = read_metrics(run / "metrics.json")
     bar = progress_bar(1, "evaluate levels A-F")
 
     def progress(done: int, total: int) -> None:
@@ -49,11 +67,11 @@ def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0) -> 
 
     try:
         report = evaluate_run(run, traffics=list(TRAFFIC_LEVELS), episodes=episodes, out=out / "evaluation.json",
-                              progress=progress)
+                              progress=progress, overwrite=overwrite)
     finally:
         bar.close()
-    render_episode(run, None, "C", False, "idm", seed, out / "two-lane-C.gif", progress=True)
-    plot = _plot(report, out / "deployment.png")
+    render_episode(run, None, "C", False, "idm", seed, out / "two-lane-C.gif", progress=True, overwrite=overwrite)
+    plot = drawn(out / "deployment.png", lambda tmp: _plot(report, tmp), overwrite)
     lines = ["# highway-srl demo", "",
              f"MoE-RM-SRL trained for {metrics['env_steps_per_seed']:,} steps on two-lane level C "
              f"({metrics['wall_s']:.0f} s, {metrics['env_steps_per_s']:,.0f} env-steps/s) under the {cfg.profile} "
@@ -63,7 +81,7 @@ def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0) -> 
              "", f"Deployment, {episodes} episodes per level:", "",
              *deployment_table(report)]
     lines += ["", f"![deployment]({plot.name})", "", "Episode: `two-lane-C.gif`. Run folder: `run/`.", ""]
-    write_atomic(out / "report.md", "\n".join(lines).encode())
+    write_atomic(out / "report.md", "\n".join(lines).encode(), replace=overwrite)
     print("\n".join(lines))
     print(f"report: {out / 'report.md'}")
     return out / "report.md"

@@ -5,12 +5,25 @@ from __future__ import annotations
 from pathlib import Path
 
 
+from highway_srl.agents.checkpoint import publish, temp_beside
 from highway_srl.constants import DEFAULT_ADVERSARY
 from highway_srl.sim import World
 from highway_srl.sim.policies import idm_ego
 from highway_srl.sim.render import capture, save_gif, save_png
 
 POLICIES = ("idm",)
+
+
+def drawn(path: Path, draw, overwrite: bool = True) -> Path:
+    """path written by draw(temporary path) and then moved into place in one step (checkpoint.publish): a
+    full disk or an interrupt leaves the file that was there, never a truncated one."""
+    tmp = temp_beside(path)
+    try:
+        draw(tmp)
+        publish(tmp, path, overwrite)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
 
 
 def _policy_driver(policy: str):
@@ -20,20 +33,21 @@ def _policy_driver(policy: str):
 
 
 def render_episode(run, scenario, traffic, adversarial, policy, seed, out: Path, steps: int = 320, backend: str = "ours",
-                   progress: bool = False, profile: str | None = None, adversary: str | None = None):
-    """Drive one episode and write `out` (GIF) and a PNG of its middle frame beside it.
+                   progress: bool = False, profile: str | None = None, adversary: str | None = None,
+                   overwrite: bool = True):
+    """Drive one episode and write `out` (GIF) and a PNG of its middle frame beside it, each drawn into a
+    temporary file and then moved into place (overwrite False: never over a file that exists).
 
     progress: a bar over the steps driven, then the frames drawn. profile, adversary: None = the run's own
     (without a run: the paper's adversary)."""
     if out.suffix.lower() != ".gif":
         raise ValueError(f"--out must end in .gif, got {str(out)!r}")
     if run is not None:
-        from highway_srl.agents.trainer import TrainConfig
         from highway_srl.experiments.policy import load_driver
-        from highway_srl.experiments.runs import run_config
+        from highway_srl.experiments.runs import train_config
 
         driver, scenario = load_driver(run, scenario, profile)
-        adversary = adversary or TrainConfig.from_dict(run_config(run)["config"]).adversary
+        adversary = adversary or train_config(run).adversary
     else:
         driver = _policy_driver(policy)
         scenario = scenario or "two-lane"
@@ -62,8 +76,9 @@ def render_episode(run, scenario, traffic, adversarial, policy, seed, out: Path,
         if bar is not None:  # the episode may end early: the rest of the bar is the drawing
             bar.total = 2 * len(frames) - 1
             bar.refresh()
-        gif = save_gif(world.road, frames, out, on_frame=None if bar is None else lambda i: bar.update())
-        png = save_png(world.road, frames[len(frames) // 2], out.with_suffix(".png"))
+        on_frame = None if bar is None else lambda i: bar.update()
+        gif = drawn(out, lambda tmp: save_gif(world.road, frames, tmp, on_frame=on_frame), overwrite)
+        png = drawn(out.with_suffix(".png"), lambda tmp: save_png(world.road, frames[len(frames) // 2], tmp), overwrite)
     finally:
         if bar is not None:
             bar.close()

@@ -13,6 +13,7 @@ import torch
 
 from highway_srl.agents.rollout import policy_step
 from highway_srl.constants import TRAFFIC_LEVELS
+from highway_srl.experiments.bench import check_sim_memory
 from highway_srl.experiments.collisions import Census, DecisionTrace
 from highway_srl.experiments.policy import load_policy
 from highway_srl.experiments.runs import provenance, write_json
@@ -89,10 +90,12 @@ def summarise(results: dict[str, torch.Tensor], scenario: str) -> dict:
 
 def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, episodes: int = 100,
                  adversarial: bool | None = None, device: str = "cpu", backend: str = "ours", out: str | Path | None = None,
-                 seed: int = 0, progress=None, profile: str | None = None, adversary: str | None = None) -> dict:
+                 seed: int = 0, progress=None, profile: str | None = None, adversary: str | None = None,
+                 overwrite: bool = True) -> dict:
     """progress(done, total), if given, is called as the work advances (vector steps on our simulator,
     episodes on the others). profile, adversary: None = the run's own (config.json; runs written before
-    these settings existed were trained under "safe" and "mild"). On our simulator each level also gets
+    these settings existed were trained under "safe" and "mild"). out is written atomically, with overwrite
+    False never over a file that exists (FileExistsError). On our simulator each level also gets
     "collisions": what the ego's collisions were (experiments/collisions.py)."""
     policy = load_policy(run, scenario, device, profile)
     cfg, method, learner = policy.config, policy.method, policy.learner
@@ -106,6 +109,8 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
     if episodes < 1:
         raise ValueError(f"episodes must be positive, got {episodes}")
     seeds = len(cfg.seeds)
+    if backend == "ours":
+        check_evaluation_memory(cfg, traffics, episodes, device, adversarial)
     report = {"run": str(run), "method": cfg.method, "scenario": scenario, "adversarial": adversarial,
               "backend": backend, "episodes_per_level": episodes, "trained_seeds": list(cfg.seeds),
               "profile": method.profile, "adversary": adversary, "levels": {},
@@ -132,8 +137,16 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
         } if seeds > 1 else None
         report["levels"][traffic] = level
     if out is not None:
-        write_json(Path(out), report)
+        write_json(Path(out), report, replace=overwrite)
     return report
+
+
+def check_evaluation_memory(cfg, traffics, episodes: int, device: str, adversarial: bool | None = None) -> None:
+    """Refuse (one line, before any work) an evaluation whose world would not fit: on our simulator every
+    episode of a level, for every trained seed, is an env of one world (bench.check_sim_memory)."""
+    adversarial = cfg.adversarial if adversarial is None else adversarial
+    for traffic in traffics or [cfg.traffic]:
+        check_sim_memory(cfg.scenario, traffic, episodes * len(cfg.seeds), device, adversarial, "use fewer --episodes")
 
 
 def _run_backend(backend, scenario, traffic, adversarial, env_seeds, method, learner, episodes, on_episode=None):

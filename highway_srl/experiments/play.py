@@ -24,7 +24,9 @@ import torch
 
 from highway_srl.constants import DT_S, STYLE_NAMES, VEHICLE_LENGTH_M, VEHICLE_WIDTH_M
 from highway_srl.experiments.evaluate import summarise
-from highway_srl.experiments.runs import append_jsonl, provenance, read_jsonl, write_json
+from highway_srl.experiments.runs import (
+    append_jsonl, check_output_folder, holds_other_files, provenance, read_jsonl, write_json,
+)
 from highway_srl.rules import scenario_reward
 from highway_srl.rules.episode import EpisodeStats, advance
 from highway_srl.rules.raw import FIVE_ACTIONS, LANE_LEFT, LANE_RIGHT, RawSafetyLayer
@@ -151,8 +153,11 @@ def play(
     each decision (tests post scripted key events there).
     """
     out = Path(out)
+    check_output_folder(out)
     if (out / "config.json").exists():
         raise FileExistsError(f"{str(out)!r} already holds a run; choose another --out")
+    if holds_other_files(out):  # a run's episodes.jsonl or metrics.json would be mixed with the person's
+        raise ValueError(f"--out {str(out)!r} holds files but no run (config.json); choose an empty or new folder")
     if episodes < 1:
         raise ValueError(f"episodes must be positive, got {episodes}")
     pygame = require_pygame()

@@ -7,14 +7,16 @@ from pathlib import Path
 
 import torch
 
-from highway_srl.agents.checkpoint import CheckpointError, load_checkpoint, split_policy_tensors
+from highway_srl.agents.checkpoint import (
+    MODEL_FILE, CheckpointError, first_non_finite, load_checkpoint, split_policy_tensors,
+)
 from highway_srl.agents.dqn import DQNLearner
 from highway_srl.agents.gating import EXPERT_NAMES
 from highway_srl.agents.methods import Method
 from highway_srl.agents.registry import make_method
 from highway_srl.agents.trainer import TrainConfig
 from highway_srl.constants import OBS_DIM
-from highway_srl.experiments.runs import read_json, run_folder
+from highway_srl.experiments.runs import run_folder, train_config
 
 
 # The reward machine's states (rules/reward_machine.py, §3.2) in words: K = keeping the target lane,
@@ -37,13 +39,17 @@ class Policy:
 def read_model(run: str | Path, expect: dict | None = None) -> tuple[TrainConfig, dict[str, torch.Tensor], dict]:
     """(TrainConfig, the model's tensors as saved, meta) of a finished run; clear errors for anything wrong."""
     folder = run_folder(run)
-    cfg = TrainConfig.from_dict(read_json(folder / "config.json")["config"])
+    cfg = train_config(folder)
     if not (folder / "model").exists():
         raise CheckpointError(f"run {str(folder)!r} has no final model yet (interrupted? resume it with --resume)")
     expected = {"method": cfg.method, "scenario": cfg.scenario}
     if expect:
         expected.update(expect)
     tensors, meta = load_checkpoint(folder / "model", expect=expected)
+    bad = first_non_finite(tensors)
+    if bad is not None:
+        raise CheckpointError(f"{folder / 'model' / MODEL_FILE}: {bad} holds NaN or infinite values; "
+                              "a diverged model is not evaluated")
     return cfg, tensors, meta
 
 

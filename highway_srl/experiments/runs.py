@@ -5,12 +5,14 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import json
+import math
 import os
 import subprocess
 from pathlib import Path
 
 from highway_srl import __version__
 from highway_srl.agents.checkpoint import write_atomic
+from highway_srl.agents.trainer import TrainConfig
 
 
 def commit() -> str | None:
@@ -31,19 +33,38 @@ def provenance() -> dict:
     return {"version": __version__, "commit": commit()}
 
 
-def write_json(path: Path, data) -> None:
-    """Write JSON atomically (temp file in the same folder, fsync, rename)."""
+def write_json(path: Path, data, replace: bool = True) -> None:
+    """Write JSON atomically (temp file in the same folder, fsync, rename; replace=False: never over a file
+    that exists, checkpoint.publish)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_atomic(path, (json.dumps(data, indent=2, default=str) + "\n").encode())
+    write_atomic(path, (json.dumps(data, indent=2, default=str) + "\n").encode(), replace)
+
+
+def is_int(value) -> bool:
+    """A JSON integer (a bool is not one)."""
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def is_finite_number(value) -> bool:
+    """A JSON number that is neither NaN nor infinite (a bool is not one)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def read_json(path: Path) -> dict:
     if not path.exists():
         raise FileNotFoundError(f"{path} does not exist")
     try:
-        return json.loads(path.read_text())
+        return json.loads(read_text(path))
     except json.JSONDecodeError as err:
         raise ValueError(f"{path} is not valid JSON ({err.msg} at line {err.lineno})") from None
+
+
+def read_text(path: Path) -> str:
+    """A file's text; ValueError naming the file if it is not UTF-8."""
+    try:
+        return path.read_text()
+    except UnicodeDecodeError as err:
+        raise ValueError(f"{path} is not UTF-8 text (byte {err.start})") from None
 
 
 def open_state(root: Path, name: str, what: str) -> dict | None:
@@ -73,7 +94,7 @@ def run_folder(path: str | Path) -> Path:
         raise FileNotFoundError(f"run folder {str(p)!r} does not exist")
     if not (p / "config.json").exists():
         raise ValueError(f"{str(p)!r} is not a run folder (no config.json)")
-    run_config(p)
+    train_config(p)
     return p
 
 
@@ -90,6 +111,17 @@ def run_config(folder: str | Path) -> dict:
     return data
 
 
+def train_config(folder: str | Path) -> TrainConfig:
+    """The TrainConfig of a run folder's config.json, every setting checked (types, finite numbers, ranges);
+    one line naming the file and the setting otherwise."""
+    path, settings = Path(folder) / "config.json", run_config(folder)["config"]
+    try:
+        return TrainConfig.from_dict(settings)
+    except (TypeError, ValueError) as err:
+        first = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise ValueError(f"{path} is damaged ({first})") from None
+
+
 def check_output_folder(path: Path, flag: str = "--out") -> None:
     """Refuse, before any work, a folder path that is a file or lies under one."""
     for p in (path, *path.parents):
@@ -99,19 +131,61 @@ def check_output_folder(path: Path, flag: str = "--out") -> None:
             return
 
 
-def check_output_file(path: Path, overwrite: bool = False, flag: str = "--out", force_flag: str = "--overwrite") -> None:
-    """Refuse, before any work, an output file path that is a folder, lies under a file, or exists (unless
-    overwrite)."""
-    if path.is_dir():
+def check_output_file(path: str | Path, overwrite: bool = False, flag: str = "--out", force_flag: str = "--overwrite") -> None:
+    """Refuse, before any work, an output file path that is a folder (or ends in a slash, as a folder's
+    name does), lies under a file, or exists (unless overwrite)."""
+    if str(path).endswith(("/", os.sep)) or Path(path).is_dir():
         raise ValueError(f"{flag} {str(path)!r} is a folder; give a file name")
+    path = Path(path)
     check_output_folder(path.parent, flag)
     if path.exists() and not overwrite:
         raise FileExistsError(f"{str(path)} exists; pass {force_flag} to replace it or {flag} to write elsewhere")
 
 
-def holds_other_files(folder: Path) -> bool:
-    """True if the folder exists and holds anything besides a run lock."""
-    return folder.is_dir() and any(p.name != LOCK_FILE for p in folder.iterdir())
+@contextlib.contextmanager
+def claim_outputs(paths: list[Path], overwrite: bool = False, flag: str = "--out"):
+    """Check output files (check_output_file) and hold a lock on them from the check until the block ends,
+    where they are written (write_atomic / publish with replace=overwrite): a second process that writes
+    the same output is refused at once. The lock is a flock on a hidden file beside the first output,
+    which the kernel drops when a process dies, so a killed writer never blocks the next one."""
+    for path in paths:
+        check_output_file(path, overwrite, flag)
+    first = Path(paths[0])
+    first.parent.mkdir(parents=True, exist_ok=True)
+    lock = first.parent / f".{first.name}.lock"
+    fd = _flock(lock)
+    if fd is None:
+        raise ValueError(f"{flag} {str(first)!r} is being written by another process; wait for it or choose another {flag}")
+    try:
+        for path in paths:  # again, under the lock: the other process may have written it meanwhile
+            check_output_file(path, overwrite, flag)
+        yield
+    finally:
+        lock.unlink(missing_ok=True)  # while held: a process that opened it before will find it replaced
+        os.close(fd)
+
+
+def _flock(lock: Path) -> int | None:
+    """A descriptor holding an exclusive flock on the file lock (created), None if another process holds it."""
+    while True:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            return None
+        try:
+            current = os.stat(lock).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            current = False
+        if current:
+            return fd
+        os.close(fd)  # the holder removed the file between our open and our lock: lock the new one
+
+
+def holds_other_files(folder: Path, ignore: tuple[str, ...] = ()) -> bool:
+    """True if the folder exists and holds anything besides a run lock (and the names in ignore)."""
+    return folder.is_dir() and any(p.name != LOCK_FILE and p.name not in ignore for p in folder.iterdir())
 
 
 @contextlib.contextmanager
@@ -158,20 +232,22 @@ def append_jsonl(path: Path, rows: list[dict]) -> None:
 
 
 def read_jsonl(path: Path) -> list[dict]:
+    """The JSON objects of a JSON-lines file, one a line; ValueError naming the first line that is not one
+    (a damaged line is never skipped: records.read_episode_log checks a training log's rows too)."""
     if not path.exists():
         return []
     rows = []
-    for line in path.read_text().splitlines():
-        line = line.strip()
-        if line:
-            try:
-                rows.append(json.loads(line))
-            except json.JSONDecodeError:
-                break  # a torn last line from an interrupted run
+    for n, line in enumerate(read_text(path).splitlines(), 1):
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError as err:
+            raise ValueError(f"{path} line {n} is damaged (not JSON: {err.msg})") from None
+        if not isinstance(row, dict):
+            raise ValueError(f"{path} line {n} is damaged (a JSON {type(row).__name__}, not an object)")
+        rows.append(row)
     return rows
 
 
-def truncate_jsonl(path: Path, keep) -> None:
-    """Keep only rows for which keep(row) is true (resuming drops episodes logged after the checkpoint)."""
-    rows = [r for r in read_jsonl(path) if keep(r)]
+def write_jsonl(path: Path, rows: list[dict]) -> None:
+    """Replace a JSON-lines file with rows, atomically."""
     write_atomic(path, "".join(json.dumps(r) + "\n" for r in rows).encode())

@@ -7,24 +7,30 @@ Run folder layout:
   scalars.csv        a row every 2,000 env steps: speed, ε, return, collision-free rate, loss, Q, TD error, expert
                      usage (TrainingLog); tb/ the same and per-episode points in TensorBoard, if it is installed
   model/             final weights (model.safetensors + meta.json), what evaluate and render load
-  resume/            full state at the last checkpoint (weights, optimiser, buffers, worlds, RNG); removed at the end
+  resume/            full state at the last checkpoint (weights, optimiser, buffers, worlds, RNG; meta.json also the
+                     training log's cadence and running window and the episodes logged); removed at the end
   metrics.json       T_c, T_r, rise time, wall time, steps/s (per seed and their mean)
 """
 
 from __future__ import annotations
 
 import math
+import sys
 import time
 from pathlib import Path
 
 import torch
 
-from highway_srl.agents.checkpoint import CheckpointError, load_checkpoint, policy_tensors, save_checkpoint, write_atomic
+from highway_srl.agents.checkpoint import (
+    MODEL_FILE, CheckpointError, first_non_finite, load_checkpoint, policy_tensors, save_checkpoint, write_atomic,
+)
 from highway_srl.agents.dqn import UpdateLog
 from highway_srl.agents.trainer import OPTIONAL_KEYS, Episode, Trainer, TrainConfig, check_config
+from highway_srl.experiments.bench import check_train_memory
+from highway_srl.experiments.records import check_fields, read_episode_log, scalar_rows
 from highway_srl.experiments.runs import (
-    append_jsonl, check_output_folder, holds_other_files, lock_run, progress_bar, provenance, read_json, read_jsonl,
-    run_config, truncate_jsonl, write_json,
+    append_jsonl, check_output_folder, holds_other_files, is_finite_number, is_int, lock_run, progress_bar, provenance,
+    read_json, run_config, train_config, write_json, write_jsonl,
 )
 
 SMOOTH_EPISODES = 20
@@ -115,42 +121,84 @@ class TrainingLog:
     A value that does not exist yet (no episode has ended, no update was made) is an empty cell and no
     TensorBoard point. TensorBoard also gets a point per finished episode at its env step: episode/return,
     episode/collision, episode/avg_speed (episodes.jsonl holds the same with the seed). Reading the values
-    is the row's only host read (the learner's stats are summed on the device).
+    is the row's host read (the learner's stats are summed on the device), with check_finite's of the
+    weights beside it. Its state (state(), restore()) is part of the resume checkpoint, so that a resumed
+    run writes the rows an uninterrupted one does.
     """
 
-    def __init__(self, out: Path, trainer: Trainer, keep_until: int | None = None):
-        """keep_until: on a resume, the checkpoint's step; rows logged after it are dropped (they are logged again)."""
+    def __init__(self, out: Path, trainer: Trainer, keep_until: int | None = None, state: dict | None = None,
+                 drop_damaged: bool = False):
+        """keep_until: on a resume, the checkpoint's step; rows logged after it are dropped (they are logged
+        again), state: the checkpoint's log state (state()), drop_damaged: records.scalar_rows'. Everything
+        is checked before scalars.csv is rewritten; self.note tells what was dropped besides later rows."""
         self.columns = ["env_steps", "steps_per_s", "episodes_per_s", "epsilon", "mean_return", "collision_free",
                         "episodes", *UpdateLog.FIELDS, *_usage_tags(usage_shares(trainer.usage.cpu(), trainer))]
         self.path = out / "scalars.csv"
-        self._write_kept_rows(keep_until)
+        self.recent: list[tuple[float, bool]] = []  # (return, collision) of the last RECENT_EPISODES episodes
+        self.ended, self.step, self.time = 0, trainer.env_steps, time.perf_counter()
+        self.usage = trainer.usage.cpu().clone()  # a copy: on the CPU .cpu() is the counter itself
+        kept, self.note = self._kept_rows(keep_until, drop_damaged)
+        if state is not None:
+            self.restore(state, trainer, f"{out / 'resume' / 'meta.json'}: log")
+            last = int(kept[-1].split(",", 1)[0]) if kept else 0
+            if last != self.step and not drop_damaged:
+                raise ValueError(f"{self.path}: its last row up to the checkpoint is at env step {last:,}, the "
+                                 f"checkpoint's at {self.step:,} (the file was cut or edited); nothing was changed "
+                                 "(--drop-damaged continues with the rows it holds)")
+        write_atomic(self.path, (",".join(self.columns) + "\n" + "".join(kept)).encode())
         self.tb = None
         try:  # TensorBoard is optional
             from torch.utils.tensorboard import SummaryWriter
 
-            self.tb = SummaryWriter(str(out / "tb"), purge_step=keep_until)  # a resume drops the later events
+            # a resume drops the events after the checkpoint's step (those at it were logged before it was saved)
+            purge = None if keep_until is None else keep_until + 1
+            self.tb = SummaryWriter(str(out / "tb"), purge_step=purge)
         except Exception:  # noqa: BLE001 - tensorboard not installed: the CSV is enough
             self.tb = None
-        self.recent: list[Episode] = []
-        self.ended, self.step, self.time = 0, trainer.env_steps, time.perf_counter()
-        self.usage = trainer.usage.cpu().clone()  # a copy: on the CPU .cpu() is the counter itself
 
-    def _write_kept_rows(self, keep_until: int | None) -> None:
-        """A fresh scalars.csv with this log's header; on a resume, the rows up to keep_until, each value
-        under its column's name (a run started by an older version has fewer columns: theirs stay empty)."""
-        rows = []
-        if keep_until is not None and self.path.exists():
-            lines = self.path.read_text().splitlines(keepends=True)
-            old = lines[0].rstrip("\n").split(",") if lines else []
-            for line in lines[1:]:
-                cells = line.rstrip("\n").split(",")
-                if line.endswith("\n") and cells[0].isdigit() and int(cells[0]) <= keep_until:
-                    row = dict(zip(old, cells))
-                    rows.append(",".join(row.get(c, "") for c in self.columns) + "\n")
-        write_atomic(self.path, (",".join(self.columns) + "\n" + "".join(rows)).encode())
+    def _kept_rows(self, keep_until: int | None, drop_damaged: bool) -> tuple[list[str], str | None]:
+        """On a resume, the rows up to keep_until (checked: records.scalar_rows), each value under its column's
+        name (a run started by an older version has fewer columns: theirs stay empty); a fresh run: none."""
+        if keep_until is None:
+            return [], None
+        if not self.path.exists():
+            raise ValueError(f"{self.path} is missing; the run cannot be continued exactly")
+        header, rows, note = scalar_rows(self.path, keep_until, drop_damaged)
+        kept = []
+        for cells in rows:
+            row = dict(zip(header, cells))
+            kept.append(",".join(row.get(c, "") for c in self.columns) + "\n")
+        return kept, note
+
+    def state(self) -> dict:
+        """What the next rows depend on besides the trainer (the resume checkpoint's meta "log"): the step of
+        the last row (the cadence), the running window and the usage counts at the last row. JSON floats
+        round-trip exactly, so a resumed run's rows equal an uninterrupted run's."""
+        return {"step": self.step, "ended": self.ended, "recent": [[r, c] for r, c in self.recent],
+                "usage": [int(u) for u in self.usage]}
+
+    def restore(self, state: dict, trainer: Trainer, where: str) -> None:
+        """Continue from state() saved at trainer's checkpoint; one line naming the field if it is damaged
+        (where: the file and the key it is under)."""
+        check_fields(state, {"step": "count", "ended": "count"}, where)
+        recent, usage = state.get("recent"), state.get("usage")
+        if state["step"] > trainer.env_steps:
+            raise ValueError(f"{where}: step {state['step']:,} is past the checkpoint's step {trainer.env_steps:,}")
+        if not (isinstance(recent, list) and len(recent) <= RECENT_EPISODES and all(
+                isinstance(e, list) and len(e) == 2 and is_finite_number(e[0]) and isinstance(e[1], bool) for e in recent)):
+            raise ValueError(f"{where}: recent must be a list of up to {RECENT_EPISODES} [return, collision] pairs")
+        if not (isinstance(usage, list) and len(usage) == len(self.usage) and all(is_int(u) and u >= 0 for u in usage)):
+            raise ValueError(f"{where}: usage must be a list of {len(self.usage)} non-negative counts")
+        self.step, self.ended = state["step"], state["ended"]
+        self.recent = [(float(r), c) for r, c in recent]
+        self.usage = torch.tensor(usage, dtype=self.usage.dtype)
+
+    def due(self, trainer: Trainer) -> bool:
+        """Whether a row is due: LOG_EVERY env steps since the last one."""
+        return trainer.env_steps - self.step >= LOG_EVERY
 
     def episodes(self, finished_eps: list[Episode]) -> None:
-        self.recent = (self.recent + finished_eps)[-RECENT_EPISODES:]
+        self.recent = (self.recent + [(e.ret, e.collision) for e in finished_eps])[-RECENT_EPISODES:]
         self.ended += len(finished_eps)
         if self.tb is not None:
             for e in finished_eps:
@@ -165,8 +213,8 @@ class TrainingLog:
         values = {"steps_per_s": (step - self.step) * len(trainer.config.seeds) / wall,
                   "episodes_per_s": self.ended / wall, "epsilon": trainer.config.dqn.epsilon(step)}
         if self.recent:
-            values["mean_return"] = sum(e.ret for e in self.recent) / len(self.recent)
-            values["collision_free"] = sum(not e.collision for e in self.recent) / len(self.recent)
+            values["mean_return"] = sum(r for r, _ in self.recent) / len(self.recent)
+            values["collision_free"] = sum(not c for _, c in self.recent) / len(self.recent)
         values["episodes"] = len(self.recent)
         values.update(trainer.update_log.read())
         if int((usage - self.usage).sum()) > 0:
@@ -179,6 +227,11 @@ class TrainingLog:
             for k, v in values.items():
                 self.tb.add_scalar(k, v, step)
         return values
+
+    def flush(self) -> None:
+        """TensorBoard's queued events to disk (before a checkpoint: a kill after it loses none of them)."""
+        if self.tb is not None:
+            self.tb.flush()
 
     def close(self) -> None:
         if self.tb is not None:
@@ -196,6 +249,14 @@ def last_checkpoint_step(out: Path) -> int | None:
         return int(read_json(out / "resume" / "meta.json")["env_steps"])
     except (OSError, ValueError, KeyError, TypeError):
         return None
+
+
+def saved_checkpoint_every(out: Path, default: int) -> int:
+    """checkpoint_every as config.json records it (a positive integer), default where it records none."""
+    value = run_config(out).get("checkpoint_every", default)
+    if not is_int(value) or value < 1:
+        raise ValueError(f"{out / 'config.json'} is damaged (checkpoint_every must be a positive integer, got {value!r})")
+    return value
 
 
 def _check_target(out: Path, resume: bool) -> None:
@@ -225,6 +286,15 @@ def _load_resume(trainer: Trainer, folder: Path, cfg: TrainConfig) -> dict:
         if got.shape != want.shape or got.dtype != want.dtype:
             raise CheckpointError(f"{folder}: {key} is {tuple(got.shape)} {got.dtype}, this run's config "
                                   f"(envs {cfg.envs}, seeds {list(cfg.seeds)}) needs {tuple(want.shape)} {want.dtype}")
+    counters = tensors.get("counters.vector_steps"), tensors.get("counters.usage")
+    if counters[0] is not None and counters[0].numel() == 1 and not 0 <= int(counters[0]) * cfg.envs < cfg.steps:
+        raise CheckpointError(f"{folder / MODEL_FILE}: counters.vector_steps {int(counters[0])} x {cfg.envs} envs is "
+                              f"not a step before the run's end ({cfg.steps:,}); it cannot be resumed")
+    if counters[1] is not None and bool((counters[1] < 0).any()):
+        raise CheckpointError(f"{folder / MODEL_FILE}: counters.usage holds negative counts; it cannot be resumed")
+    bad = first_non_finite(tensors, nan_only=("world.",))
+    if bad is not None:
+        raise CheckpointError(f"{folder / MODEL_FILE}: {bad} holds NaN or infinite values; it cannot be resumed")
     try:
         trainer.load_state_dict(tensors)
     except (RuntimeError, ValueError, KeyError, TypeError, IndexError) as err:
@@ -234,28 +304,26 @@ def _load_resume(trainer: Trainer, folder: Path, cfg: TrainConfig) -> dict:
 
 
 def train_run(cfg: TrainConfig | None, out: str | Path, resume: bool = False, checkpoint_every: int = 50_000,
-              progress: bool = True) -> dict:
+              progress: bool = True, drop_damaged: bool = False) -> dict:
     """Train and write the run folder; returns metrics.json's content.
 
     resume: continue the run in `out` with every setting it was started with (config.json holds the
-    TrainConfig and checkpoint_every; `cfg` and `checkpoint_every` are then ignored). The folder is locked
+    TrainConfig and checkpoint_every; `cfg` and `checkpoint_every` are then ignored; drop_damaged: continue
+    from the rows before a damaged line of its logs instead of refusing, _resume_logs). The folder is locked
     while this runs (a second process gets a one-line error); nothing is written before every check passed.
     """
     out = Path(out)
     code = provenance()  # the code that runs is the code loaded now, not what is checked out at the end
     _check_target(out, resume)
     if resume:
-        saved = run_config(out)
-        try:
-            cfg = TrainConfig.from_dict(saved["config"])
-        except (TypeError, ValueError) as err:
-            raise ValueError(f"{out / 'config.json'} is damaged ({str(err).splitlines()[0]})") from None
-        checkpoint_every = int(saved.get("checkpoint_every", checkpoint_every))
+        cfg = train_config(out)
+        checkpoint_every = saved_checkpoint_every(out, checkpoint_every)
     check_config(cfg)  # a setting no run can have is refused before any folder is made
+    check_train_memory(cfg)  # and one that would not fit in memory
     out.mkdir(parents=True, exist_ok=True)
     with lock_run(out):
         _check_target(out, resume)  # again, under the lock: another process may have finished meanwhile
-        return _train_locked(cfg, out, resume, checkpoint_every, progress, code)
+        return _train_locked(cfg, out, resume, checkpoint_every, progress, code, drop_damaged)
 
 
 # vector steps between two reads of the finished episodes (the progress bar and episodes.jsonl lag by up to
@@ -263,51 +331,92 @@ def train_run(cfg: TrainConfig | None, out: str | Path, resume: bool = False, ch
 DRAIN_EVERY = 50
 
 
-def _train_locked(cfg: TrainConfig, out: Path, resume: bool, checkpoint_every: int, progress: bool, code: dict) -> dict:
+def max_episode_step(cfg: TrainConfig) -> int:
+    """The last env step (per seed) an episode of a run can end at: the last vector step may pass cfg.steps."""
+    return cfg.steps + cfg.envs - 1
+
+
+def _resume_logs(trainer: Trainer, out: Path, cfg: TrainConfig, drop_damaged: bool) -> tuple[TrainingLog, float, int]:
+    """Load resume/ into the trainer and keep what its checkpoint covers of episodes.jsonl and scalars.csv:
+    (the training log, the wall time so far, the episodes logged). Every file is checked (records.py) before
+    any is rewritten; one that does not match the checkpoint is refused, or with drop_damaged cut at its
+    first damaged line (a note on stderr says how much was dropped)."""
+    meta = _load_resume(trainer, out / "resume", cfg)
+    meta_path = out / "resume" / "meta.json"
+    check_fields(meta, {"wall_s": "number", "episodes_logged": "count"}, str(meta_path),
+                 optional=("wall_s", "episodes_logged"))  # checkpoints written before these existed lack them
+    log = out / "episodes.jsonl"
+    rows, note = read_episode_log(log, cfg.seeds, max_episode_step(cfg), drop_damaged)
+    rows = [r for r in rows if r["step"] <= trainer.env_steps]
+    if len(rows) != meta.get("episodes_logged", len(rows)) and not drop_damaged:
+        raise ValueError(f"{log} holds {len(rows)} episodes up to the checkpoint's step {trainer.env_steps:,}, the "
+                         f"checkpoint counted {meta['episodes_logged']} (the log was cut or edited); nothing was "
+                         "changed (--drop-damaged continues with the rows it holds)")
+    scalars = TrainingLog(out, trainer, trainer.env_steps, meta.get("log"), drop_damaged)
+    write_jsonl(log, rows)
+    for line in (note, scalars.note):
+        if line is not None:
+            print(f"note: {line}", file=sys.stderr)
+    return scalars, meta.get("wall_s", 0.0), len(rows)
+
+
+def _train_locked(cfg: TrainConfig, out: Path, resume: bool, checkpoint_every: int, progress: bool, code: dict,
+                  drop_damaged: bool = False) -> dict:
     trainer = Trainer(cfg, drain_every=DRAIN_EVERY)
     log = out / "episodes.jsonl"
     started = time.perf_counter()
     if resume and (out / "resume").exists():
-        meta = _load_resume(trainer, out / "resume", cfg)
-        truncate_jsonl(log, lambda r: r["step"] <= trainer.env_steps)
-        scalars = TrainingLog(out, trainer, keep_until=trainer.env_steps)
-        prior_wall = meta.get("wall_s", 0.0)
+        scalars, prior_wall, logged = _resume_logs(trainer, out, cfg, drop_damaged)
     else:
+        logged = 0
         log.unlink(missing_ok=True)  # a resume before the first checkpoint starts afresh
         prior_wall = 0.0
         write_json(out / "config.json", {"config": cfg.to_dict(), "checkpoint_every": checkpoint_every, **code})
         scalars = TrainingLog(out, trainer)
     log.touch()
     bar = progress_bar(cfg.steps, f"train {cfg.method}", enabled=progress, initial=min(trainer.env_steps, cfg.steps))
-    last_ckpt, last_log = trainer.env_steps, trainer.env_steps
+    last_ckpt = trainer.env_steps
     try:
         while trainer.env_steps < cfg.steps:
             finished_eps = trainer.step()
             at_end = trainer.env_steps >= cfg.steps
             checkpoint = trainer.env_steps - last_ckpt >= checkpoint_every and not at_end
-            if at_end or checkpoint or trainer.env_steps - last_log >= LOG_EVERY:
+            if at_end or checkpoint or scalars.due(trainer):
                 finished_eps += trainer.drain()  # everything up to this step is in the log before it is written
             if finished_eps:
                 append_jsonl(log, [_episode_row(e) for e in finished_eps])
+                logged += len(finished_eps)
                 scalars.episodes(finished_eps)
             if bar is not None:  # tqdm redraws on its own clock (mininterval); no tensor is read here
                 bar.update(min(trainer.env_steps, cfg.steps) - bar.n)
-            if trainer.env_steps - last_log >= LOG_EVERY or at_end:
+            if scalars.due(trainer) or at_end:
+                since = scalars.step
                 values = scalars.log(trainer)
+                check_finite(trainer, values, since)
                 if bar is not None:
                     bar.set_postfix(_postfix(values), refresh=False)
-                last_log = trainer.env_steps
             if checkpoint:
                 wall = prior_wall + time.perf_counter() - started
-                save_checkpoint(out / "resume", trainer.state_dict(), {**_meta(cfg, trainer, code), "wall_s": wall})
+                check_finite(trainer, {}, last_ckpt)  # a checkpoint never holds a diverged state
+                scalars.flush()
+                save_checkpoint(out / "resume", trainer.state_dict(),
+                                {**_meta(cfg, trainer, code), "wall_s": wall, "log": scalars.state(),
+                                 "episodes_logged": logged})
                 last_ckpt = trainer.env_steps
     finally:
         scalars.close()
         if bar is not None:
             bar.close()  # ends the bar's line, so a message after an interrupt starts on its own line
-    wall = prior_wall + time.perf_counter() - started
+    return _finish(cfg, trainer, out, prior_wall + time.perf_counter() - started, code)
+
+
+def _finish(cfg: TrainConfig, trainer: Trainer, out: Path, wall: float, code: dict) -> dict:
+    """The model, then metrics.json from the episode log (checked: records.py); resume/ removed last."""
     save_checkpoint(out / "model", policy_tensors(trainer.learner, trainer.method), {**_meta(cfg, trainer, code), "wall_s": wall})
-    metrics = training_metrics(read_jsonl(log), list(cfg.seeds))
+    rows, note = read_episode_log(out / "episodes.jsonl", cfg.seeds, max_episode_step(cfg))
+    if note is not None:
+        print(f"note: {note}", file=sys.stderr)
+    metrics = training_metrics(rows, list(cfg.seeds))
     metrics.update({"method": cfg.method, "scenario": cfg.scenario, "traffic": cfg.traffic,
                     "adversarial": cfg.adversarial, "profile": cfg.profile, "adversary": cfg.adversary,
                     "replay_ratio": cfg.replay_ratio, "updates_per_step": cfg.updates_per_step, "env_steps_per_seed": trainer.env_steps, "seeds": list(cfg.seeds),
@@ -316,6 +425,38 @@ def _train_locked(cfg: TrainConfig, out: Path, resume: bool, checkpoint_every: i
     write_json(out / "metrics.json", metrics)
     _remove_resume(out / "resume")
     return metrics
+
+
+class TrainingDiverged(ValueError):
+    """A loss, Q-value or weight became NaN or infinite: the run stops (the CLI's one-line error)."""
+
+
+def check_finite(trainer: Trainer, values: dict, since: int) -> None:
+    """TrainingDiverged at the first non-finite update statistic (values: a scalars.csv row's loss, q_mean,
+    td_error) or weight (any member's, then the rest of the policy: targets, Adam moments, the method's
+    state). Called at each scalars.csv row, whose update statistics are read anyway, and before each
+    checkpoint: one host read per member's weights there, none per gradient step, so the step named is
+    the check's, the divergence lies between `since` and it."""
+    step, bad = trainer.env_steps, None
+    members = (~trainer.learner.online.flat.isfinite().all(1)).nonzero().flatten().tolist()
+    if members:
+        bad = f"the weights of {member_name(trainer, members[0])}"
+    elif any(not math.isfinite(values[k]) for k in UpdateLog.FIELDS if k in values):
+        bad = "the loss, Q-value or TD error of the updates (" + ", ".join(
+            f"{k} {values[k]}" for k in UpdateLog.FIELDS if k in values) + ")"
+    elif (key := first_non_finite(policy_tensors(trainer.learner, trainer.method))) is not None:
+        bad = f"the policy's {key}"
+    if bad is not None:
+        raise TrainingDiverged(f"training stopped at env step {step}: {bad} became NaN or infinite after step "
+                               f"{since} (checked at each scalars.csv row and checkpoint); the run stops, its last checkpoint is kept")
+
+
+def member_name(trainer: Trainer, member: int) -> str:
+    """A learner member in words: "expert E2,1 (seed 3)" for MoE, "member 0 (seed 0)" otherwise."""
+    per_seed = trainer.method.num_members // len(trainer.config.seeds)
+    names = getattr(trainer.method, "member_names", None)
+    name = f"expert {names[member % per_seed]}" if names else f"member {member % per_seed}"
+    return f"{name} (seed {trainer.config.seeds[member // per_seed]})"
 
 
 def _usage_tags(shares: dict[str, float]) -> dict[str, float]:
@@ -390,6 +531,7 @@ def bench_train_form(method: str, scenario: str, traffic: str, envs: int, steps:
                       compile_unrolled=unrolled,
                       dqn=DQNConfig(learning_starts=0, batch_size=batch_size,
                                     buffer_capacity=buffer_capacity or DQNConfig.buffer_capacity))
+    check_train_memory(cfg)
     trainer = Trainer(cfg, drain_every=DRAIN_EVERY)
     sync = torch.cuda.synchronize if trainer.device.type == "cuda" else (lambda: None)
     # fill every acting member's buffer past one batch so updates run from the first timed step

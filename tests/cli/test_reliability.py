@@ -1,7 +1,6 @@
 """Issue 15: nothing the user had is lost, nothing is silently wrong. Each bad case gives the right answer or
 one line on stderr with exit status 2, and every file that was there is unchanged (hashes before/after)."""
 
-import hashlib
 import json
 import os
 import signal
@@ -14,52 +13,12 @@ import pytest
 import torch
 from safetensors.torch import load_file, save_file
 
+from cli_runs import TRAIN, hashes, interrupted_run, one_line_error, run
+
 from highway_srl.cli import build_parser, main
 from highway_srl.experiments import train as train_mod
 
 ROOT = Path(__file__).resolve().parents[2]
-TRAIN = ["train", "--traffic", "A", "--envs", "8", "--learning-starts", "64", "--quiet"]
-
-
-def hashes(folder: Path) -> dict[str, str]:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(folder.rglob("*")) if p.is_file()}
-
-
-def run(capsys, *argv):
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def one_line_error(code, err, needle):
-    assert code == 2, err
-    assert needle in err, err
-    assert err.count("\n") == 1 and "Traceback" not in err, err
-
-
-@pytest.fixture(scope="module")
-def finished_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("runs") / "run"
-    assert main(TRAIN + ["--steps", "160", "--out", str(out)]) == 0
-    return out
-
-
-def interrupted_run(tmp_path, monkeypatch, capsys, steps=400, every=80, die_after=25):
-    """A run killed by Ctrl-C after `die_after` vector steps (8 envs): resume/ holds its checkpoint."""
-    real_step, calls = train_mod.Trainer.step, {"n": 0}
-
-    def dying(self):
-        calls["n"] += 1
-        if calls["n"] > die_after:
-            raise KeyboardInterrupt
-        return real_step(self)
-
-    monkeypatch.setattr(train_mod.Trainer, "step", dying)
-    out = tmp_path / "killed"
-    code, _, err = run(capsys, *TRAIN, "--steps", steps, "--checkpoint-every", every, "--out", out)
-    monkeypatch.setattr(train_mod.Trainer, "step", real_step)
-    return out, code, err
 
 
 # ---------------------------------------------------------------- data loss / silently wrong answers
@@ -198,14 +157,13 @@ def test_evaluate_checks_its_output_before_evaluating(capsys, finished_run, tmp_
 @pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o077, 0o600)])
 def test_written_files_get_the_usual_mode_under_the_umask(tmp_path, umask, mode):
     from highway_srl.agents.checkpoint import save_checkpoint
-    from highway_srl.experiments.runs import truncate_jsonl, write_json
+    from highway_srl.experiments.runs import write_json, write_jsonl
 
     old = os.umask(umask)
     try:
         write_json(tmp_path / "a.json", {"x": 1})
         save_checkpoint(tmp_path / "model", {"w": torch.zeros(2)}, {"m": 1})
-        (tmp_path / "e.jsonl").write_text('{"step": 1}\n')
-        truncate_jsonl(tmp_path / "e.jsonl", lambda r: True)
+        write_jsonl(tmp_path / "e.jsonl", [{"step": 1}])
     finally:
         os.umask(old)
     for path in (tmp_path / "a.json", tmp_path / "model" / "model.safetensors", tmp_path / "model" / "meta.json",
