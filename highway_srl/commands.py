@@ -453,12 +453,17 @@ def _cmd_falsify(args) -> int:
     from highway_srl.experiments import falsify as fz
 
     if args.replay is not None:
-        result = fz.replay_case(fz.load_case(args.replay), args.profile)
+        case = fz.load_case(args.replay)
+        result = fz.replay_case(case, args.profile)
+        if args.gif is not None:
+            result["gif"] = [str(p) for p in fz.render_case(case, args.gif, args.profile)]
         print(json.dumps(result, indent=2) if args.json else
               (f"replayed under {result['profile']}: " + (f"collision in step {result['step']} ({result['cause']}; "
                f"{'ego-avoidable' if result['ego_avoidable'] else 'unavoidable'}), "
                f"{'confirmed' if result['confirmed'] else 'NOT at the recorded step ' + str(result['expected_step'])}"
                if result["collided"] else "no collision: not confirmed")))
+        if args.gif is not None and not args.json:
+            print("\n".join(result["gif"]))
         return 0 if result["confirmed"] else 1
     modes = {"nominal": False, "adversarial": True}
     names = [m.strip() for m in args.modes.split(",") if m.strip()]
@@ -504,6 +509,7 @@ def _add_falsify(sub) -> None:
     p.add_argument("--out", default=None, help="folder for report.json and the cases (one per cause)")
     p.add_argument("--replay", default=None, metavar="CASE.json", help="replay a case and confirm its collision "
                    "(exit status 1 if it does not recur)")
+    p.add_argument("--gif", default=None, metavar="OUT.gif", help="with --replay: draw the episode (a PNG beside it)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_falsify)
 

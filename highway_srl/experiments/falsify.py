@@ -298,3 +298,24 @@ def replay_case(case: Case, profile: str | None = None) -> dict:
                       all_allowed=all(r["action"] in r["allowed"] for r in rec["decisions"]))
     result["confirmed"] = result["collided"] and result["step"] == result["expected_step"]
     return result
+
+
+def render_case(case: Case, out: str | Path, profile: str | None = None) -> list[Path]:
+    """The case's episode as a GIF (and a PNG of its middle frame beside it), each frame titled with the
+    action taken and the actions the rule layer allowed."""
+    from highway_srl.experiments.episodes import draw_episode
+
+    out = Path(out)
+    if out.suffix.lower() != ".gif":
+        raise ValueError(f"--gif must end in .gif, got {str(out)!r}")
+    check_output_folder(out.parent, "--gif")
+    world = World(case.scene, case.level, case.adversarial, 1, "cpu", case.seed + case.env, max_steps=case.steps,
+                  adversary=case.adversary)
+    layer = SafetyLayer(world.road, profile=profile or case.profile)
+    step = iter(case.actions)
+
+    def driver(w):
+        view, action = layer.observe(w), next(step)
+        allowed = [name for name, ok in zip(ACTIONS, view.primary.mask[0].tolist()) if ok]
+        return layer.act(torch.tensor([action])), [f"{ACTIONS[action]}", "allowed: " + ",".join(allowed)]
+    return draw_episode(world, driver, len(case.actions), out)

@@ -94,13 +94,18 @@ def test_the_cli_writes_cases_and_replays_them(tmp_path, capsys):
     path = report["cases"][0]["path"]
     assert main(["falsify", "--replay", path]) == 0
     assert "confirmed" in capsys.readouterr().out
+    gif = tmp_path / "case.gif"
+    assert main(["falsify", "--replay", path, "--gif", str(gif)]) == 0
+    assert gif.stat().st_size > 0 and gif.with_suffix(".png").exists()
+    assert main(["falsify", "--replay", path, "--gif", str(tmp_path / "case.mp4")]) == 2
     (tmp_path / "bad.json").write_text(json.dumps({**json.loads(open(path).read()), "actions": [7]}))
     assert main(["falsify", "--replay", str(tmp_path / "bad.json")]) == 2
     assert main(["falsify", "--modes", "sideways"]) == 2
     assert main(["falsify", "--policy", "reckless"]) == 2
     assert main(["falsify", *args, "--out", str(out)]) == 2  # a folder with a report is not written over
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 4 and "actions must be" in err[0] and "--modes" in err[1] and "already holds" in err[3]
+    assert len(err) == 5 and "must end in .gif" in err[0] and "actions must be" in err[1] and "--modes" in err[2]
+    assert "already holds" in err[4]
 
 
 def test_every_policy_takes_only_allowed_actions():
