@@ -68,11 +68,12 @@ def trace(run: str, traffics: list[str], episodes: int, window: int, show: int, 
         world = World(cfg.scenario, traffic, cfg.adversarial, len(env_seeds), "cpu", env_seeds,
                       adversary=cfg.adversary)
         recorder = DecisionTrace(method, window)
-        results = run_episodes(world, method, learner, on_transition=recorder)
+        results = run_episodes(world, method, learner, after_step=recorder.after_step, on_transition=recorder)
         for record in recorder.records[:show]:
             print(show_decisions(record), file=sys.stderr)
         out["levels"][traffic] = {"C_r": round(float(1.0 - results["collided"].float().mean()), 4),
-                                  "collisions": len(recorder.records), "by_decision": recorder.counts()}
+                                  "collisions": len(recorder.records), "by_decision": recorder.counts(),
+                                  **recorder.verdicts()}
     return out
 
 

@@ -10,34 +10,17 @@ from __future__ import annotations
 import argparse
 import time
 
-import torch
-
-from highway_srl.agents.gating import explore_gate
-from highway_srl.constants import SCENARIOS
-from highway_srl.rules import SafetyLayer
-from highway_srl.sim import World
+from highway_srl.constants import EPISODE_STEPS, SCENARIOS
+from highway_srl.experiments.falsify import FalsifySettings, sweep_batch
 
 
-def sweep(scenario: str, level: str, adversarial: bool, episodes: int, seed: int, **layer_options) -> dict:
-    world = World(scenario, level, adversarial, episodes, "cpu", seed)
-    layer = SafetyLayer(world.road, **layer_options)
-    gen = torch.Generator().manual_seed(seed)
-    step = layer.observe(world)
-    alive = torch.ones(episodes, dtype=torch.bool)
-    collided = torch.zeros(episodes, dtype=torch.bool)
-    start_lane = world.ego_lane.clone()
-    changed = torch.zeros(episodes, dtype=torch.bool)
-    for _ in range(world.max_steps):
-        action, _ = explore_gate(step.primary.mask, gen)
-        lane, speed = layer.act(action)
-        events = world.step(lane, speed)
-        step = layer.observe(world)
-        collided |= alive & events.collision
-        changed |= alive & (world.ego_lane != start_lane)
-        alive &= ~(events.terminated | events.truncated)
-        if not bool(alive.any()):
-            break
-    return {"collision_free": float((~collided).float().mean()), "changed_lane": float(changed.float().mean())}
+def sweep(scenario: str, level: str, adversarial: bool, episodes: int, seed: int, profile: str = "safe",
+          **layer_options) -> dict:
+    """ExG's random safe actions in `episodes` envs (falsify's breadth search with policy exg, the mild
+    adversary): the collision-free share and the share of episodes with a lane change."""
+    settings = FalsifySettings(profile=profile, policy="exg", steps=EPISODE_STEPS, adversary="mild")
+    counts, _ = sweep_batch(scenario, level, adversarial, settings, seed, episodes, **layer_options)
+    return {"collision_free": 1.0 - counts["collisions"] / episodes, "changed_lane": counts["changed_lane"] / episodes}
 
 
 def main() -> None:

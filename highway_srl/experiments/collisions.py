@@ -22,6 +22,7 @@ import collections
 import torch
 
 from highway_srl.constants import VEHICLE_WIDTH_M
+from highway_srl.rules.avoidable import ego_avoidable
 from highway_srl.sim.collision import boxes_overlap
 
 OFF_CENTRE_M = 0.5  # a centre this far off its lane's centre is taken as changing lanes
@@ -29,7 +30,8 @@ OFF_CENTRE_M = 0.5  # a centre this far off its lane's centre is taken as changi
 
 def classify(world, envs: torch.Tensor) -> list[dict]:
     """One record per env index in envs (M,): kind (front, rear, side, road), ego_changing, sv ('changing',
-    'forced cut-in' or 'keeping lane'; None for road), the ego's and the SV's speeds (m/s)."""
+    'forced cut-in' or 'keeping lane'; None for road), the ego's and the SV's speeds (m/s) and, for a
+    vehicle, its index in the world (sv_index)."""
     s, w = world.state, world.road.lane_width_m
     b = envs.to(s.x.device)
     x0, y0, h0 = s.x[b, :1], s.y[b, :1], s.heading[b, :1]
@@ -53,7 +55,7 @@ def classify(world, envs: torch.Tensor) -> list[dict]:
         else:
             kind = "side" if abs(float(lat[m])) > 0.5 * VEHICLE_WIDTH_M else ("front" if float(lon[m]) > 0 else "rear")
             sv = "forced cut-in" if bool(s.forced[b[m], j[m]]) else ("changing" if bool(sv_changing[m]) else "keeping lane")
-            rec.update(kind=kind, sv=sv, sv_speed=float(s.v[b[m], j[m]]))
+            rec.update(kind=kind, sv=sv, sv_speed=float(s.v[b[m], j[m]]), sv_index=int(j[m]))
         records.append(rec)
     return records
 
@@ -119,13 +121,20 @@ class DecisionTrace:
     shield's); a lane change (LaneChange; LaneLeft / LaneRight of A) allowed and executed while R*1 = 0
     (Table 1 allows it on R*2 ∧ R*4 alone and the paper's control mapping holds the speed through it);
     Faster or Idle allowed and executed with R*1 = 1 at a bumper gap under CREEP_GAP_M; other.
-    `records`: one dict per collision, in order: env, step, class, and the decisions (one dict per step)."""
+    `records`: one dict per collision, in order: env, step, class, and the decisions (one dict per step).
+
+    after_step(world, events, alive), run_episodes' other hook, adds the ego-avoidable verdict
+    (rules.avoidable): it keeps the world's positions and speeds of the last `window` steps, classifies each
+    new collision (classify: kind, who was changing lanes, the vehicle hit) and gives every decision row the
+    hit vehicle's offsets (dx, dy) and speed (v_sv) in the state the decision was taken in; the record gets
+    kind, ego_avoidable (bool) and reason. verdicts() counts them."""
 
     def __init__(self, method, window: int = 8) -> None:
         if window < 1:
             raise ValueError(f"window must be positive, got {window}")
         self.method, self.step, self.records = method, 0, []
         self._recent: collections.deque = collections.deque(maxlen=window)
+        self._states: collections.deque = collections.deque(maxlen=window + 1)  # (step, x, y, v) after a step
 
     def __call__(self, view, t, alive) -> None:
         model = view.select(t.decision.use_second)
@@ -146,6 +155,41 @@ class DecisionTrace:
                         for r in self._recent]
                 self.records.append({"env": env, "step": self.step - 1, "class": classify_decisions(rows),
                                      "decisions": rows})
+
+    def after_step(self, world, events, alive) -> None:
+        """Judge this step's collisions (the records __call__ just made) against the kept states."""
+        s = world.state
+        self._states.append((self.step - 1, s.x.clone(), s.y.clone(), s.v.clone()))
+        new = events.collision & alive
+        if not bool(new.any()):
+            return
+        envs = new.nonzero().flatten()
+        by_env = {rec["env"]: rec for rec in self.records if rec["step"] == self.step - 1 and "kind" not in rec}
+        for env, hit in zip(envs.tolist(), classify(world, envs)):
+            rec = by_env.get(env)
+            if rec is not None:
+                self._judge(rec, hit)
+
+    def _judge(self, rec: dict, hit: dict) -> None:
+        states = {step: (x, y, v) for step, x, y, v in self._states}
+        env, j = rec["env"], hit.get("sv_index")
+        for row in rec["decisions"]:
+            before = states.get(row["step"] - 1)  # the state the decision was taken in
+            if j is None or before is None:
+                row.update(dx=None, dy=None, v_sv=None)
+                continue
+            x, y, v = before
+            row.update(dx=float(x[env, j] - x[env, 0]), dy=float(y[env, j] - y[env, 0]), v_sv=float(v[env, j]))
+        sv_changing = hit["sv"] in ("changing", "forced cut-in")
+        avoidable, reason = ego_avoidable(hit["kind"], hit["ego_changing"], sv_changing, rec["decisions"])
+        rec.update(kind=hit["kind"], ego_avoidable=avoidable, reason=reason)
+
+    def verdicts(self) -> dict:
+        """The judged collisions: ego_avoidable and unavoidable counts and the count of each reason."""
+        judged = [rec for rec in self.records if "ego_avoidable" in rec]
+        return {"ego_avoidable": sum(rec["ego_avoidable"] for rec in judged),
+                "unavoidable": sum(not rec["ego_avoidable"] for rec in judged),
+                "by_reason": dict(collections.Counter(rec["reason"] for rec in judged).most_common())}
 
     def counts(self) -> dict[str, int]:
         """Every collision's class, counted (all of DECISION_CLASSES, zeros included)."""
@@ -168,7 +212,9 @@ def classify_decisions(rows: list[dict]) -> str:
 
 def show_decisions(record: dict) -> str:
     """A DecisionTrace record as text: the collision, then its last decisions one line each."""
-    lines = [f"env {record['env']}: collision in step {record['step']} ({record['class']})"]
+    verdict = "" if "reason" not in record else \
+        f"; {'ego-avoidable' if record['ego_avoidable'] else 'unavoidable'}: {record['reason']}"
+    lines = [f"env {record['env']}: collision in step {record['step']} ({record['class']}{verdict})"]
     for r in record["decisions"]:
         lines.append(f"  step {r['step']:3d} x {r['x']:7.1f} y {r['y']:5.2f} lane {r['lane']} m*_L {int(r['m'])} "
                      f"v {r['v']:5.2f} | ahead: gap {r['gap1']:6.2f} m v {r['v1']:5.2f} R*1 {int(r['r1'])} | "

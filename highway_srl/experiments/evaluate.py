@@ -122,7 +122,12 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
             n = world.max_steps
             tick = None if progress is None else lambda t, i=i, n=n: progress(i * n + t, len(traffics) * n)
             census, trace = Census(), DecisionTrace(method)
-            results = run_episodes(world, method, learner, tick, census.level(traffic), trace)
+            count = census.level(traffic)
+
+            def after_step(w, events, alive, count=count, trace=trace):  # the census, then the verdicts
+                count(w, events, alive)
+                trace.after_step(w, events, alive)
+            results = run_episodes(world, method, learner, tick, after_step, trace)
             if progress is not None:
                 progress((i + 1) * n, len(traffics) * n)
         else:
@@ -130,7 +135,7 @@ def evaluate_run(run: str | Path, scenario: str | None = None, traffics=None, ep
             results = _run_backend(backend, scenario, traffic, adversarial, env_seeds, method, learner, episodes, tick)
         level = summarise(results, scenario)
         if backend == "ours":
-            level["collisions"] = {**census.summary()[traffic], "by_decision": trace.counts()}
+            level["collisions"] = {**census.summary()[traffic], "by_decision": trace.counts(), **trace.verdicts()}
         level["per_seed"] = {
             str(s): summarise({k: v[i * episodes:(i + 1) * episodes] for k, v in results.items()}, scenario)
             for i, s in enumerate(cfg.seeds)

@@ -1,0 +1,321 @@
+"""`highway-srl falsify`: search for ego-avoidable collisions of the rule layer, and replay what it finds.
+
+Breadth search over the batched simulator: in every chosen scene x level x nominal/adversarial, `episodes`
+episodes in batches of `envs`; at each step the ego takes one of the actions the rule layer allows
+(Table 1 through the profile's mappings): uniformly at random ("uniform"), the allowed action that brings
+the nearest predicted contact soonest ("greedy-ttc", an adversarial ego), or ExG's draw through the MoE gate
+("exg", the distribution of exploration and of scripts/shield_sweep.py). Every collision is classified by
+the decision trace (experiments.collisions.DecisionTrace: kind, decision class, ego-avoidable verdict of
+rules.avoidable). The report gives the episodes, the collisions by cause, the ego-avoidable count and the
+95 % upper bound on the per-episode rate of ego-avoidable collisions (3/N with none, else the exact
+one-sided Clopper-Pearson bound). Each cause's first counterexample is kept as a replayable case: the
+world's seed and env, the settings, and the ego's actions, which replay_case drives again in a world of one
+env (env b of a batch depends only on its own seed, sim.World).
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import torch
+
+from highway_srl.agents.gating import explore_gate
+from highway_srl.constants import DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, TRAFFIC_LEVELS, V_MAX_MPS
+from highway_srl.experiments.collisions import DecisionTrace
+from highway_srl.experiments.runs import check_output_folder, read_json, write_json
+from highway_srl.rules import ACTIONS, SafetyLayer, control_profile
+from highway_srl.scenarios import check_scenario
+from highway_srl.sim import World
+
+POLICIES = ("uniform", "greedy-ttc", "exg")
+NO_CONTACT_S = 1e6  # a predicted time to collision when nothing closes in
+
+
+@dataclass
+class FalsifySettings:
+    scenes: tuple[str, ...] = ("two-lane",)
+    levels: tuple[str, ...] = tuple(TRAFFIC_LEVELS)
+    modes: tuple[bool, ...] = (False, True)  # adversarial off, on
+    profile: str = "safe"
+    policy: str = "uniform"
+    episodes: int = 256  # per scene, level and mode
+    envs: int = 256
+    seed: int = 0
+    steps: int = 320  # episode length
+    adversary: str = "paper"
+
+    def check(self) -> None:
+        for scene in self.scenes:
+            check_scenario(scene)
+        for level in self.levels:
+            if level not in TRAFFIC_LEVELS:
+                raise ValueError(f"unknown traffic level {level!r}; choose from {', '.join(TRAFFIC_LEVELS)}")
+        control_profile(self.profile)
+        if self.policy not in POLICIES:
+            raise ValueError(f"unknown policy {self.policy!r}; choose one of {', '.join(POLICIES)}")
+        for name in ("episodes", "envs", "steps"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be non-negative, got {self.seed}")
+
+
+@dataclass
+class Case:
+    """One counterexample: enough to drive the same episode again (replay_case)."""
+
+    scene: str
+    level: str
+    adversarial: bool
+    adversary: str
+    profile: str
+    seed: int  # the batch's world seed; the episode's own seed is seed + env
+    env: int
+    steps: int
+    actions: list[int]  # the ego's actions (indices into ACTIONS), the last one led to the collision
+    cause: str
+    ego_avoidable: bool
+    record: dict = field(default_factory=dict)  # the decision trace's record of the collision
+
+
+class _AllowedActions:
+    """What DecisionTrace reads of a method: the action names and the safe mask (the rule layer's own)."""
+
+    action_names = ACTIONS
+
+    @staticmethod
+    def safe_mask(model) -> torch.Tensor:
+        return model.mask
+
+
+def choose(policy: str, view, generator: torch.Generator) -> torch.Tensor:
+    """(B,) action indices among the allowed actions of view (a SafetyStep; its primary model), by `policy`
+    (POLICIES)."""
+    model = view.primary
+    mask = model.mask
+    if policy == "exg":
+        return explore_gate(mask, generator)[0]
+    if policy == "uniform":
+        u = torch.rand(mask.shape, generator=generator, device=mask.device)
+        return torch.where(mask, u, -1.0).argmax(1)
+    score = torch.where(mask, predicted_ttc(model, view.snapshot.ego_vx), 2 * NO_CONTACT_S)
+    return score.argmin(1)  # ties (nothing closing) go to the first: Faster, the most aggressive
+
+
+def predicted_ttc(model, v: torch.Tensor) -> torch.Tensor:
+    """(B, 4) time (s) to the nearest contact after each action from the ego's speed v (B,), at constant
+    speeds from the next step:
+    Faster, Idle, Slower against SV1 ahead (Slower also SV3 behind), LaneChange against SV2 ahead and SV4
+    behind in the other lane. NO_CONTACT_S where nothing closes in."""
+    g, sv = model.gaps_m, model.vehicles.vx
+    faster = (v + EGO_ACCEL_MAX_MPS2 * DT_S).clamp(max=V_MAX_MPS)
+    slower = (v - EGO_BRAKE_MAX_MPS2 * DT_S).clamp(min=0.0)
+
+    def ttc(gap, closing):
+        return torch.where(closing > 1e-6, gap.clamp(min=0.0) / closing.clamp(min=1e-6), NO_CONTACT_S)
+
+    ahead = lambda speed: ttc(g[:, 0], speed - sv[:, 0])  # noqa: E731
+    behind = lambda speed, k: ttc(g[:, k], sv[:, k] - speed)  # noqa: E731
+    change = torch.minimum(ttc(g[:, 1], v - sv[:, 1]), behind(v, 3))
+    return torch.stack([ahead(faster), ahead(v), torch.minimum(ahead(slower), behind(slower, 2)), change], 1)
+
+
+def drive(world, layer, pick, trace: DecisionTrace, limit: int | None = None):
+    """Drive one episode in every env of world through layer, pick(step, view) -> (B,) actions, recording
+    the collisions in trace; returns (actions (B, steps) long, collided (B,), changed_lane (B,))."""
+    b = world.num_envs
+    steps = world.max_steps if limit is None else min(limit, world.max_steps)
+    actions = torch.zeros(b, steps, dtype=torch.long)
+    alive, collided = torch.ones(b, dtype=torch.bool), torch.zeros(b, dtype=torch.bool)
+    changed, start_lane = torch.zeros(b, dtype=torch.bool), world.ego_lane.clone()
+    view = layer.observe(world)
+    for step in range(steps):
+        action = pick(step, view)
+        actions[:, step] = action
+        events = world.step(*layer.act(action))
+        trace(view, _Step(_Decision(action), events), alive)
+        trace.after_step(world, events, alive)
+        collided |= alive & events.collision
+        changed |= alive & (world.ego_lane != start_lane)
+        alive &= ~(events.terminated | events.truncated)
+        if not bool(alive.any()):
+            break
+        view = layer.observe(world)
+    return actions, collided, changed
+
+
+@dataclass
+class _Decision:
+    action: torch.Tensor
+    use_second: None = None
+
+
+@dataclass
+class _Step:
+    decision: _Decision
+    events: object
+
+
+def sweep_batch(scene: str, level: str, adversarial: bool, settings: FalsifySettings, seed: int, envs: int,
+                **layer_options) -> tuple[dict, list[Case]]:
+    """One batch of `envs` episodes (world seed `seed`): its counts and one Case per collision."""
+    world = World(scene, level, adversarial, envs, "cpu", seed, max_steps=settings.steps,
+                  adversary=settings.adversary)
+    layer = SafetyLayer(world.road, profile=settings.profile, **layer_options)
+    gen = torch.Generator().manual_seed(seed)
+    trace = DecisionTrace(_AllowedActions())
+    actions, collided, changed = drive(world, layer, lambda step, view: choose(settings.policy, view, gen), trace)
+    cases = [Case(scene, level, adversarial, settings.adversary, settings.profile, seed, rec["env"], settings.steps,
+                  actions[rec["env"], :rec["step"] + 1].tolist(), cause_of(rec), rec["ego_avoidable"], rec)
+             for rec in trace.records]
+    counts = {"episodes": envs, "collisions": int(collided.sum()), "changed_lane": int(changed.sum()),
+              "by_kind": dict(collections.Counter(rec["kind"] for rec in trace.records)),
+              "by_decision": trace.counts(), **trace.verdicts()}
+    return counts, cases
+
+
+def cause_of(record: dict) -> str:
+    """A collision's cause: its kind, the decision class and the verdict's reason."""
+    return f"{record['kind']}; {record['class']}; {record['reason']}"
+
+
+def rate_upper_bound(k: int, n: int, confidence: float = 0.95) -> float:
+    """One-sided upper confidence bound on a per-episode rate from k events in n episodes: 3/n for k = 0
+    (the rule of three, -ln 0.05 = 3.0), else the exact Clopper-Pearson bound, the p with
+    P(Binomial(n, p) <= k) = 1 - confidence (bisection on the binomial CDF)."""
+    if n < 1 or not 0 <= k <= n:
+        raise ValueError(f"need 0 <= k <= n and n >= 1, got k={k}, n={n}")
+    if k == 0:
+        return min(1.0, 3.0 / n)
+    if k == n:
+        return 1.0
+    lo, hi = k / n, 1.0
+    for _ in range(100):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if binomial_cdf(k, n, mid) > 1.0 - confidence else (lo, mid)
+    return hi
+
+
+def binomial_cdf(k: int, n: int, p: float) -> float:
+    """P(Binomial(n, p) <= k), summed in log space (n up to millions)."""
+    if p <= 0.0:
+        return 1.0
+    if p >= 1.0:
+        return 0.0 if k < n else 1.0
+    log_p, log_q = math.log(p), math.log1p(-p)
+    terms = [math.lgamma(n + 1) - math.lgamma(i + 1) - math.lgamma(n - i + 1) + i * log_p + (n - i) * log_q
+             for i in range(k + 1)]
+    top = max(terms)
+    return min(1.0, math.exp(top) * sum(math.exp(t - top) for t in terms))
+
+
+def add_counts(total: dict, part: dict) -> dict:
+    """total + part for dicts of counts (nested dicts of counts summed key by key)."""
+    for key, value in part.items():
+        if isinstance(value, dict):
+            add_counts(total.setdefault(key, {}), value)
+        else:
+            total[key] = total.get(key, 0) + value
+    return total
+
+
+def falsify(settings: FalsifySettings, out: str | Path | None = None, progress=None) -> dict:
+    """The breadth search of the module docstring; the report (dict). out: a folder for one case JSON per
+    cause found (scene and cause deduplicated; the report lists them) and report.json.
+    progress(done, total), if given, is called after each batch."""
+    settings.check()
+    if out is not None:
+        check_output_folder(Path(out))
+        if (Path(out) / "report.json").exists():
+            raise ValueError(f"--out {str(out)!r} already holds a falsify report; choose another folder")
+    cells, kept, total = [], {}, {}
+    plan = [(scene, adv, level) for scene in settings.scenes for adv in settings.modes for level in settings.levels]
+    batches = math.ceil(settings.episodes / settings.envs)
+    for i, (scene, adversarial, level) in enumerate(plan):
+        cell = {"scene": scene, "level": level, "adversarial": adversarial}
+        for start in range(0, settings.episodes, settings.envs):
+            n = min(settings.envs, settings.episodes - start)
+            counts, cases = sweep_batch(scene, level, adversarial, settings, settings.seed + start, n)
+            add_counts(cell, counts)
+            for case in cases:
+                kept.setdefault((scene, case.cause), case)
+            if progress is not None:
+                progress(i * batches + start // settings.envs + 1, len(plan) * batches)
+        cells.append(cell)
+        add_counts(total, {k: v for k, v in cell.items() if k not in ("scene", "level", "adversarial")})
+    report = {"settings": asdict(settings), **total,
+              "ego_avoidable_rate_upper_95": rate_upper_bound(total["ego_avoidable"], total["episodes"]),
+              "cells": cells, "cases": []}
+    if out is not None:
+        report["cases"] = write_cases(Path(out), list(kept.values()))
+        write_json(Path(out) / "report.json", report)
+    else:
+        report["cases"] = [{"cause": c.cause, "ego_avoidable": c.ego_avoidable} for c in kept.values()]
+    return report
+
+
+def write_cases(folder: Path, cases: list[Case]) -> list[dict]:
+    """One JSON per case, ego-avoidable ones first; returns their paths and causes."""
+    listed = []
+    for n, case in enumerate(sorted(cases, key=lambda c: not c.ego_avoidable)):
+        mode = "adversarial" if case.adversarial else "nominal"
+        path = folder / f"case-{n:03d}-{case.scene}-{case.level}-{mode}.json"
+        write_json(path, asdict(case))
+        listed.append({"path": str(path), "cause": case.cause, "ego_avoidable": case.ego_avoidable})
+    return listed
+
+
+def load_case(path: str | Path) -> Case:
+    """A case written by falsify; ValueError naming what is wrong otherwise."""
+    data = read_json(Path(path))
+    try:
+        case = Case(**data)
+    except TypeError as err:
+        raise ValueError(f"{path} is not a falsify case ({err})") from None
+    if not case.actions or any(not 0 <= a < len(ACTIONS) for a in case.actions):
+        raise ValueError(f"{path}: actions must be a non-empty list of indices into {', '.join(ACTIONS)}")
+    return case
+
+
+def replay_case(case: Case, profile: str | None = None) -> dict:
+    """Drive the case's episode again with its actions (under `profile`, default the case's own): whether
+    it collides, where, whether every action was allowed, and the decision trace's verdict."""
+    profile = profile or case.profile
+    world = World(case.scene, case.level, case.adversarial, 1, "cpu", case.seed + case.env, max_steps=case.steps,
+                  adversary=case.adversary)
+    layer = SafetyLayer(world.road, profile=profile)
+    recorded = torch.tensor(case.actions)
+    trace = DecisionTrace(_AllowedActions())
+    drive(world, layer, lambda step, view: recorded[step:step + 1], trace, limit=len(case.actions))
+    rec = trace.records[0] if trace.records else None
+    result = {"profile": profile, "collided": rec is not None, "step": None if rec is None else rec["step"],
+              "expected_step": len(case.actions) - 1}
+    if rec is not None:
+        result.update(cause=cause_of(rec), ego_avoidable=rec["ego_avoidable"],
+                      all_allowed=all(r["action"] in r["allowed"] for r in rec["decisions"]))
+    result["confirmed"] = result["collided"] and result["step"] == result["expected_step"]
+    return result
+
+
+def render_case(case: Case, out: str | Path, profile: str | None = None) -> list[Path]:
+    """The case's episode as a GIF (and a PNG of its middle frame beside it), each frame titled with the
+    action taken and the actions the rule layer allowed."""
+    from highway_srl.experiments.episodes import draw_episode
+
+    out = Path(out)
+    if out.suffix.lower() != ".gif":
+        raise ValueError(f"--gif must end in .gif, got {str(out)!r}")
+    check_output_folder(out.parent, "--gif")
+    world = World(case.scene, case.level, case.adversarial, 1, "cpu", case.seed + case.env, max_steps=case.steps,
+                  adversary=case.adversary)
+    layer = SafetyLayer(world.road, profile=profile or case.profile)
+    step = iter(case.actions)
+
+    def driver(w):
+        view, action = layer.observe(w), next(step)
+        allowed = [name for name, ok in zip(ACTIONS, view.primary.mask[0].tolist()) if ok]
+        return layer.act(torch.tensor([action])), [f"{ACTIONS[action]}", "allowed: " + ",".join(allowed)]
+    return draw_episode(world, driver, len(case.actions), out)

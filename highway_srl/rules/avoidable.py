@@ -1,0 +1,157 @@
+"""Ego-avoidable collisions: whether the ego could have prevented a collision, grounded in RSS.
+
+Definition (docs/paper-notes.md, "Ego-avoidable collisions"): a collision is ego-avoidable if some action
+sequence within the ego's limits (accelerate <= 3.5, brake <= 6 m/s^2, keep or change lanes) from a state
+it was in would have prevented it, while every other car keeps to its own limits: a leader brakes at most
+at SV_BRAKE_MAX_MPS2 (the simulator's physical limit), a car behind brakes for the ego. That is the
+responsibility rule of Responsibility-Sensitive Safety (Shalev-Shwartz, Shammah, Shashua 2017,
+arXiv:1708.06374): the follower keeps the safe longitudinal distance (Definition 1, Lemma 2) and is to
+blame for running into its leader; a car that cuts in at a distance below it is to blame itself.
+
+The verdict reads what the decision trace keeps for a collision (experiments.collisions.DecisionTrace):
+its kind (front, rear, side, road), who was changing lanes, and per decision the executed and allowed
+actions and the longitudinal and lateral offsets and speeds of the vehicle that was hit. Cases, in order:
+  1. an action the rule layer forbade was executed: avoidable (any allowed action was a choice);
+  2. road (a lane end, a barrier, the road's edge): avoidable (the ego's own path);
+  3. the ego was changing lanes: avoidable (it changed into an occupied or closing gap);
+  4. front: unavoidable only if the car it hit came into its path within the trace (seen out of it first,
+     or out of it at the last decision) at a bumper gap the ego could not stop in, braking at its limit
+     at once while that car braked at its own (room_to_stop); avoidable otherwise, also when the car was
+     in its path all along;
+  5. side: with the other car changing lanes, as case 4 (a car that turned in ahead with room to brake
+     is avoidable, one that turned in alongside or below the stopping distance is not); else avoidable;
+  6. rear: avoidable if the ego braked (Slower) while the car ahead did not require it (R*1 = 1) and the
+     hit car behind was inside the RSS distance it needed to stop for the ego; else unavoidable.
+Doubtful cases fall on the avoidable side: a claim of zero avoidable collisions must not rest on them.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from highway_srl.constants import (
+    DT_S,
+    EGO_ACCEL_MAX_MPS2,
+    EGO_BRAKE_MAX_MPS2,
+    EPS_P_M,
+    LANE_WIDTH_M,
+    SV_BRAKE_MAX_MPS2,
+    VEHICLE_LENGTH_M,
+    VEHICLE_WIDTH_M,
+)
+
+Num = torch.Tensor | float
+
+# A car is in the ego's path when the two bodies are closer sideways than this: a car in the next lane whose
+# corner has come within ε_p of the lane line (Eq. 31's near-boundary test, 1.25 m with w_L = 3.5, B = 2),
+# the moment the rule layer groups it with the ego's lane and the ego can first answer it.
+PATH_MARGIN_M = LANE_WIDTH_M / 2 + EPS_P_M - VEHICLE_WIDTH_M / 2
+
+FORBIDDEN_ACTION = "executed an action the rule layer forbade"
+ROAD = "left the road or ran into a lane end"
+EGO_CHANGED = "changed lanes into an occupied or closing gap"
+RAN_INTO = "ran into the car ahead with room to stop"
+CUT_IN = "cut in ahead below the ego's stopping distance"
+SIDE_SWIPE = "an SV changing lanes met the ego's side"
+SIDE_ROOM = "an SV turning in ahead left room to brake"
+SIDE_KEEPING = "side contact with neither car changing lanes"
+NEEDLESS_BRAKE = "braked without need in front of a close follower"
+REAR = "hit from behind by a car that did not brake for the ego"
+AVOIDABLE_REASONS = (FORBIDDEN_ACTION, ROAD, EGO_CHANGED, RAN_INTO, SIDE_ROOM, SIDE_KEEPING, NEEDLESS_BRAKE)
+UNAVOIDABLE_REASONS = (CUT_IN, SIDE_SWIPE, REAR)
+
+
+def rss_safe_distance(v_rear: Num, v_front: Num, *, response_s: Num = DT_S, accel_max: Num = EGO_ACCEL_MAX_MPS2,
+                      brake_min: Num = EGO_BRAKE_MAX_MPS2, brake_max: Num = SV_BRAKE_MAX_MPS2) -> torch.Tensor:
+    """RSS minimum safe longitudinal distance, same direction (Shalev-Shwartz et al. 2017, Definition 1 and
+    the closed form of Lemma 2), in m:
+
+        d_min = [v_r ρ + ½ a_max,accel ρ² + (v_r + ρ a_max,accel)² / (2 a_min,brake) - v_f² / (2 a_max,brake)]_+
+
+    v_rear, v_front: speeds of the rear and the front car (m/s, >= 0); response_s: ρ; accel_max: the rear
+    car's largest acceleration during ρ; brake_min: the braking the rear car applies after ρ; brake_max: the
+    front car's largest braking. Defaults: the paper's ego behind an SV (ρ = δt = 0.125 s, 3.5, 6, 6 m/s²).
+    """
+    v_r, v_f, rho, acc, b_min, b_max = (torch.as_tensor(z, dtype=torch.float64)
+                                        for z in (v_rear, v_front, response_s, accel_max, brake_min, brake_max))
+    if bool((b_min <= 0).any()) or bool((b_max <= 0).any()):
+        raise ValueError("brake_min and brake_max must be positive decelerations in m/s^2")
+    v_r1 = v_r + rho * acc
+    d = v_r * rho + 0.5 * acc * rho * rho + v_r1 * v_r1 / (2.0 * b_min) - v_f * v_f / (2.0 * b_max)
+    return d.clamp(min=0.0)
+
+
+def stopping_distance_steps(v: float, brake: float = EGO_BRAKE_MAX_MPS2, dt: float = DT_S) -> float:
+    """Distance (m) the ego covers from speed v braking at `brake` every step of dt until it stands, as the
+    simulator integrates it (each step covers the mean of its start and end speeds times dt; the last
+    step ends at 0): n v dt - ½ n² brake dt² for the n full steps, then half the remaining speed times dt."""
+    if v <= 0:
+        return 0.0
+    n = int(v // (brake * dt))
+    rest = v - n * brake * dt
+    return n * v * dt - 0.5 * n * n * brake * dt * dt + 0.5 * rest * dt
+
+
+def room_to_stop(gap_m: float, v_ego: float, v_sv: float, ego_brake: float = EGO_BRAKE_MAX_MPS2,
+                 sv_brake: float = SV_BRAKE_MAX_MPS2) -> bool:
+    """Whether the ego, braking at its limit from this decision on, stops behind a car `gap_m` ahead that
+    brakes at its own limit from now (the end-state comparison of RSS with ρ = 0: the decision is the
+    response)."""
+    return gap_m > stopping_distance_steps(v_ego, ego_brake) - v_sv * v_sv / (2.0 * sv_brake)
+
+
+def in_path(row: dict) -> bool | None:
+    """Whether the hit car was in the ego's path at this decision (None: its offsets were not recorded)."""
+    if row.get("dy") is None:
+        return None
+    return abs(row["dy"]) < VEHICLE_WIDTH_M + PATH_MARGIN_M
+
+
+def ego_avoidable(kind: str, ego_changing: bool, sv_changing: bool, rows: list[dict]) -> tuple[bool, str]:
+    """(avoidable, reason) of one collision, by the cases of the module docstring.
+
+    kind: front, rear, side or road (experiments.collisions.classify); ego_changing / sv_changing: who was
+    changing lanes at contact; rows: the decisions before it, oldest first, each with action and allowed
+    (action names), r1 (R*1), v (the ego's speed) and, for the car that was hit, dx (its centre ahead of
+    the ego's, m; negative behind), dy (sideways, m) and v_sv (m/s), or None where it was not recorded."""
+    if kind not in ("front", "rear", "side", "road"):
+        raise ValueError(f"unknown collision kind {kind!r}; choose front, rear, side or road")
+    if any(r["action"] not in r["allowed"] for r in rows):
+        return True, FORBIDDEN_ACTION
+    if kind == "road":
+        return True, ROAD
+    if ego_changing:
+        return True, EGO_CHANGED
+    if kind == "side":
+        return entry_verdict(rows, SIDE_ROOM, SIDE_SWIPE) if sv_changing else (True, SIDE_KEEPING)
+    if kind == "rear":
+        return (True, NEEDLESS_BRAKE) if any(_needless_brake(r) for r in rows) else (False, REAR)
+    return entry_verdict(rows, RAN_INTO, CUT_IN)
+
+
+def entry_verdict(rows: list[dict], avoidable_reason: str, unavoidable_reason: str) -> tuple[bool, str]:
+    """Cases 4 and 5: find where the hit car last came into the ego's path; room to stop behind it there
+    decides (a car alongside or behind at that moment leaves none). Not seen out of the path first (in it
+    since before the trace, or not recorded): the follower's responsibility, avoidable."""
+    paths = [in_path(r) for r in rows]
+    if paths and paths[-1] is False:  # it came into the path in the colliding step itself
+        return False, unavoidable_reason
+    i = len(rows) - 1
+    while i > 0 and paths[i] and paths[i - 1]:
+        i -= 1
+    if i <= 0 or not paths[i] or paths[i - 1] is not False:
+        return True, avoidable_reason
+    r = rows[i]
+    gap = r["dx"] - VEHICLE_LENGTH_M
+    return (True, avoidable_reason) if room_to_stop(gap, r["v"], r["v_sv"]) else (False, unavoidable_reason)
+
+
+def _needless_brake(row: dict) -> bool:
+    """Case 6: Slower with the front safe, the hit car behind in the path and closer than its RSS distance
+    (it keeps its speed for δt, as the rule layer assumes behind, then brakes at its limit)."""
+    if row["action"] != "Slower" or not row["r1"] or not in_path(row) or row["dx"] >= 0:
+        return False
+    gap = -row["dx"] - VEHICLE_LENGTH_M
+    need = rss_safe_distance(row["v_sv"], row["v"], accel_max=0.0, brake_min=SV_BRAKE_MAX_MPS2,
+                             brake_max=EGO_BRAKE_MAX_MPS2)
+    return gap < float(need)

@@ -1,0 +1,144 @@
+"""The ego-avoidable verdict and the RSS safe distance (rules/avoidable.py): golden values and cases."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from highway_srl.rules.avoidable import (
+    CUT_IN,
+    EGO_CHANGED,
+    FORBIDDEN_ACTION,
+    NEEDLESS_BRAKE,
+    RAN_INTO,
+    REAR,
+    ROAD,
+    SIDE_KEEPING,
+    SIDE_ROOM,
+    SIDE_SWIPE,
+    ego_avoidable,
+    rss_safe_distance,
+    stopping_distance_steps,
+)
+from highway_srl.rules.safe_distance import safe_distance
+
+ALL = ["Faster", "Idle", "Slower", "LaneChange"]
+
+
+def test_rss_safe_distance_golden_values():
+    # Lemma 2 by hand: 10·0.125 + ½·3.5·0.125² + (10 + 0.4375)²/12 - 0 = 1.25 + 0.02734375 + 9.07845052...
+    assert float(rss_safe_distance(10.0, 0.0)) == pytest.approx(10.355794270833334, abs=1e-12)
+    assert float(rss_safe_distance(10.0, 10.0)) == pytest.approx(10.355794270833334 - 100 / 12, abs=1e-12)
+    assert float(rss_safe_distance(0.0, 10.0)) == 0.0  # the leader is faster: [.]_+ clamps
+    # ρ = 1 s, a_max,accel = 2, a_min,brake = 4, a_max,brake = 8: 5 + 1 + 7²/8 - 5²/16 = 10.5625
+    assert float(rss_safe_distance(5.0, 5.0, response_s=1.0, accel_max=2.0, brake_min=4.0, brake_max=8.0)) == 10.5625
+    with pytest.raises(ValueError, match="positive decelerations"):
+        rss_safe_distance(5.0, 5.0, brake_min=0.0)
+
+
+def test_rss_equals_the_sound_front_safe_distance_on_the_papers_parameters():
+    """Equal brakes (6/6), ρ = δt, the follower may accelerate at 3.5 during ρ: the sound Eqs. 19-27 and
+    RSS's Lemma 2 are the same number (case C of Eq. 24 is Lemma 2; case B needs |a_L| < |a_F|)."""
+    v = torch.linspace(0.0, 10.0, 41, dtype=torch.float64)
+    ve, vo = torch.meshgrid(v, v, indexing="ij")
+    assert torch.allclose(safe_distance(ve, vo, front=True), rss_safe_distance(ve, vo), atol=1e-9)
+
+
+def test_stopping_distance_steps_matches_the_simulators_integration():
+    def stepped(v, brake=6.0, dt=0.125):
+        d = 0.0
+        while v > 0:
+            nxt = max(v - brake * dt, 0.0)
+            d, v = d + 0.5 * (v + nxt) * dt, nxt
+        return d
+
+    assert stopping_distance_steps(0.75) == pytest.approx(0.046875)
+    assert stopping_distance_steps(10.0) == pytest.approx(8.34375)  # 13 full steps, then 0.25 m/s
+    assert stopping_distance_steps(0.0) == 0.0
+    for v in (0.1, 0.4, 3.3, 7.5, 9.99):
+        assert stopping_distance_steps(v) == pytest.approx(stepped(v), abs=1e-12)
+
+
+def row(dx, dy=0.0, v=8.0, v_sv=6.0, action="Idle", allowed=ALL, r1=True):
+    return {"action": action, "allowed": list(allowed), "r1": r1, "v": v, "dx": dx, "dy": dy, "v_sv": v_sv}
+
+
+def test_a_forced_cut_in_at_zero_metres_is_unavoidable():
+    rows = [row(5.5, dy=3.5), row(5.0, dy=3.2), row(4.8, dy=2.9), row(4.6, dy=2.5)]  # bumper gap 0 m on entry
+    assert ego_avoidable("front", False, True, rows) == (False, CUT_IN)
+    # into the path during the colliding step itself: no decision could answer it
+    assert ego_avoidable("front", False, True, rows[:1]) == (False, CUT_IN)
+
+
+def test_a_cut_in_with_room_to_brake_is_avoidable():
+    rows = [row(22.0, dy=3.5), row(21.0, dy=2.2), row(15.0), row(9.0), row(5.0)]  # 16 m gap, 8 vs 6 m/s
+    assert ego_avoidable("front", False, True, rows) == (True, RAN_INTO)
+
+
+def test_the_ego_accelerating_into_a_stopped_car_is_avoidable():
+    rows = [row(25.0 - 1.2 * k, v=8.0 + 0.4 * k, v_sv=0.0, action="Faster") for k in range(8)]
+    assert ego_avoidable("front", False, False, rows) == (True, RAN_INTO)
+    rows[-1]["allowed"] = ["Slower"]  # and with Faster forbidden at the last decision, that is named first
+    assert ego_avoidable("front", False, False, rows) == (True, FORBIDDEN_ACTION)
+
+
+def test_the_other_cases():
+    assert ego_avoidable("road", False, False, [row(0.0)]) == (True, ROAD)
+    assert ego_avoidable("side", True, False, [row(0.0, dy=2.0)]) == (True, EGO_CHANGED)
+    assert ego_avoidable("front", True, False, [row(5.0)]) == (True, EGO_CHANGED)
+    assert ego_avoidable("side", False, True, [row(1.0, dy=3.5), row(0.5, dy=2.8)]) == (False, SIDE_SWIPE)
+    assert ego_avoidable("side", False, True, [row(25.0, dy=3.5), row(24.0, dy=3.0)]) == (True, SIDE_ROOM)
+    assert ego_avoidable("side", False, False, [row(1.0, dy=2.5)]) == (True, SIDE_KEEPING)
+    follower = [row(-6.0, v=8.0, v_sv=9.0)]  # 1 m behind, faster: it needs ~8 m to stop for the ego
+    assert ego_avoidable("rear", False, False, follower) == (False, REAR)
+    follower[0]["action"] = "Slower"
+    assert ego_avoidable("rear", False, False, follower) == (True, NEEDLESS_BRAKE)
+    follower[0]["r1"] = False  # braking that the car ahead required is no fault
+    assert ego_avoidable("rear", False, False, follower) == (False, REAR)
+    unseen = [{**row(5.0), "dx": None, "dy": None, "v_sv": None}] * 3
+    assert ego_avoidable("front", False, True, unseen) == (True, RAN_INTO)  # doubt falls on avoidable
+    with pytest.raises(ValueError, match="unknown collision kind"):
+        ego_avoidable("above", False, False, [])
+
+
+def _ad_rss_distance(rss, ph, v_rear: float, v_front: float) -> float:
+    """Intel's ad-rss calculateSafeLongitudinalDistanceSameDirection on the paper's parameters (brakes are
+    negative there; every field its input check reads is set)."""
+    def state(v):
+        s = rss.core.RelativeObjectState()
+        s.object_type = rss.world.ObjectType.OtherVehicle
+        d = s.dynamics
+        d.alpha_lon.accel_max = ph.Acceleration(3.5)
+        d.alpha_lon.brake_max = d.alpha_lon.brake_min = d.alpha_lon.brake_min_correct = ph.Acceleration(-6.0)
+        d.alpha_lat.accel_max, d.alpha_lat.brake_min = ph.Acceleration(0.2), ph.Acceleration(-0.8)
+        d.response_time, d.max_speed_on_acceleration = ph.Duration(0.125), ph.Speed(100.0)
+        u = d.unstructured_settings
+        u.pedestrian_turning_radius, u.vehicle_min_radius = ph.Distance(2.0), ph.Distance(3.5)
+        u.drive_away_max_angle, u.vehicle_yaw_rate_change = ph.Angle(2.4), ph.AngularAcceleration(0.3)
+        u.vehicle_trajectory_calculation_step = ph.Duration(0.2)
+        o = s.unstructured_object_state
+        o.yaw, o.steering_angle, o.yaw_rate = ph.Angle(0.0), ph.Angle(0.0), ph.AngularVelocity(0.0)
+        o.dimension.length, o.dimension.width = ph.Distance(5.0), ph.Distance(2.0)
+        o.center_point.x, o.center_point.y = ph.Distance(0.0), ph.Distance(0.0)
+        o.speed_range.minimum, o.speed_range.maximum = ph.Speed(0.0), ph.Speed(100.0)
+        ss = s.structured_object_state
+        ss.velocity.speed_lon_min = ss.velocity.speed_lon_max = ph.Speed(v)
+        ss.velocity.speed_lat_min = ss.velocity.speed_lat_max = ph.Speed(0.0)
+        ss.distance_to_enter_intersection = ss.distance_to_leave_intersection = ph.Distance(1000.0)
+        ss.is_in_correct_lane = True
+        return s
+
+    out = ph.Distance(0.0)
+    assert rss.structured.calculateSafeLongitudinalDistanceSameDirection(state(v_front), state(v_rear), out)
+    return out.mDistance
+
+
+def test_rss_safe_distance_agrees_with_intel_ad_rss_where_it_is_installed():
+    """An implementation nobody here wrote (pip install ad-rss==5.0.0; not a dependency of the project)."""
+    pytest.importorskip("ad_rss")
+    from ad_physics.ad_physics_python311 import physics
+    from ad_rss.ad_rss_python311 import rss
+
+    for v_rear, v_front in ((10.0, 0.0), (10.0, 10.0), (5.0, 5.0), (0.0, 0.0), (5.0, 10.0), (7.3, 2.1)):
+        assert _ad_rss_distance(rss, physics, v_rear, v_front) == pytest.approx(
+            float(rss_safe_distance(v_rear, v_front)), abs=1e-9)
