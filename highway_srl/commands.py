@@ -493,7 +493,7 @@ def _cmd_falsify(args) -> int:
         case = fz.load_case(args.replay)
         result = fz.replay_case(case, args.profile)
         if args.gif is not None:
-            result["gif"] = [str(p) for p in fz.render_case(case, args.gif, args.profile)]
+            result["gif"] = [str(p) for p in fz.render_case(case, args.gif, args.profile, args.overwrite)]
         print(json.dumps(result, indent=2) if args.json else
               (f"replayed under {result['profile']}: " + (f"collision in step {result['step']} ({result['cause']}; "
                f"{'ego-avoidable' if result['ego_avoidable'] else 'unavoidable'}), "
@@ -547,6 +547,7 @@ def _add_falsify(sub) -> None:
     p.add_argument("--replay", default=None, metavar="CASE.json", help="replay a case and confirm its collision "
                    "(exit status 1 if it does not recur)")
     p.add_argument("--gif", default=None, metavar="OUT.gif", help="with --replay: draw the episode (a PNG beside it)")
+    p.add_argument("--overwrite", action="store_true", help="with --gif: replace the GIF and PNG if they exist")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=_cmd_falsify)
 

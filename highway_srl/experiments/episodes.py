@@ -60,12 +60,13 @@ def render_episode(run, scenario, traffic, adversarial, policy, seed, out: Path,
         world = make_backend(backend, scenario, traffic, adversarial, seed)
         if run is None:  # the built-in driver that only uses the Backend protocol
             driver = lambda w: (idm_ego_backend(w), [])  # noqa: E731
-    return draw_episode(world, driver, steps, out, progress)
+    return draw_episode(world, driver, steps, out, progress, overwrite)
 
 
-def draw_episode(world, driver, steps: int, out: Path, progress: bool = False) -> list[Path]:
+def draw_episode(world, driver, steps: int, out: Path, progress: bool = False, overwrite: bool = False) -> list[Path]:
     """Drive world's one env with driver(world) -> ((lane, speed), text lines) for up to `steps` steps (to
-    the episode's end), then write `out` (GIF) and a PNG of the middle frame beside it; returns both paths."""
+    the episode's end), then write `out` (GIF) and a PNG of the middle frame beside it; returns both paths.
+    overwrite False: never over a file that exists (the write refuses in one line)."""
     from highway_srl.experiments.runs import progress_bar
 
     bar = progress_bar(2 * steps + 1, "render (drive, then draw)", unit="frame", enabled=progress)

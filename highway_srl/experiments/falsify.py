@@ -300,9 +300,9 @@ def replay_case(case: Case, profile: str | None = None) -> dict:
     return result
 
 
-def render_case(case: Case, out: str | Path, profile: str | None = None) -> list[Path]:
+def render_case(case: Case, out: str | Path, profile: str | None = None, overwrite: bool = False) -> list[Path]:
     """The case's episode as a GIF (and a PNG of its middle frame beside it), each frame titled with the
-    action taken and the actions the rule layer allowed."""
+    action taken and the actions the rule layer allowed; an existing GIF or PNG only with overwrite."""
     from highway_srl.experiments.episodes import draw_episode
 
     out = Path(out)
@@ -318,4 +318,4 @@ def render_case(case: Case, out: str | Path, profile: str | None = None) -> list
         view, action = layer.observe(w), next(step)
         allowed = [name for name, ok in zip(ACTIONS, view.primary.mask[0].tolist()) if ok]
         return layer.act(torch.tensor([action])), [f"{ACTIONS[action]}", "allowed: " + ",".join(allowed)]
-    return draw_episode(world, driver, len(case.actions), out)
+    return draw_episode(world, driver, len(case.actions), out, overwrite=overwrite)
