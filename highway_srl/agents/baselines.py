@@ -290,8 +290,8 @@ class LMRL(SingleDQN):
     def update(self, learner: DQNLearner, members: torch.Tensor, batch: dict,
                mask: torch.Tensor | None = None) -> UpdateStats:
         """members (K,): reward networks (even indices) whose buffers gave batch; their cost networks
-        (members + 1) train on the same transitions. The learner's own target is y = r + γ(1 - done) max Q;
-        passing the policy-evaluation targets as rewards with done = True makes it exactly y.
+        (members + 1) train on the same transitions, toward the policy-evaluation targets computed here
+        (passed to the learner as "y", so that it skips its own max-Q target).
         mask (K,) bool: only those reward networks and their cost networks step (the static form).
         Returns the reward networks' stats (the logs' Q values are returns, not costs)."""
         k = members.shape[0]
@@ -306,10 +306,7 @@ class LMRL(SingleDQN):
             bootstrap = learner.config.gamma * (~batch["done"]).to(obs.dtype)
             y_r = batch["reward"] + bootstrap * q_tg[:k].gather(2, a_next).squeeze(2)
             y_c = batch["cost"] + bootstrap * q_tg[k:].gather(2, a_next).squeeze(2)
-        targets = {
-            "obs": torch.cat([obs, obs]), "action": torch.cat([batch["action"]] * 2), "reward": torch.cat([y_r, y_c]),
-            "next_obs": torch.cat([nxt, nxt]), "done": torch.ones(2 * k, obs.shape[1], dtype=torch.bool, device=obs.device),
-        }
+        targets = {"obs": torch.cat([obs, obs]), "action": torch.cat([batch["action"]] * 2), "y": torch.cat([y_r, y_c])}
         if mask is None:
             return learner.update(both, targets).head(k)
         return learner.update_masked(both, targets, torch.cat([mask, mask])).head(k)

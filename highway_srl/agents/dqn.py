@@ -181,25 +181,26 @@ class DQNLearner:
 
         batch: "obs" (K, N, obs_dim), "action" (K, N) long (inside the member's set),
         "reward" (K, N), "next_obs" (K, N, obs_dim), "done" (K, N) bool (termination only).
-        TD target y = r + gamma (1 - done) max_{a' in A_m} Q_target,m(s', a') (Algorithm 1);
+        TD target y = r + gamma (1 - done) max_{a' in A_m} Q_target,m(s', a') (Algorithm 1); a method with
+        targets of its own (LM-RL's policy evaluation) passes them as "y" (K, N) instead of reward, next_obs
+        and done, and the target network's forward pass is skipped.
         loss = mean over N of (y - Q_m(s, a))^2 (the DQN loss of §2.3), or Huber if configured.
         Returns the per-member loss, mean Q(s, a) and mean |TD error| (UpdateStats, (K,) each), detached.
         Nothing here reads a value back to the host, so on a GPU the call queues work without synchronising.
         """
         cfg = self.config
         idx = members.to(self.device)
-        obs, next_obs = batch["obs"].to(self.device), batch["next_obs"].to(self.device)
-        action, reward = batch["action"].to(self.device), batch["reward"].to(self.device)
-        done = batch["done"].to(self.device)
-
+        obs, action = batch["obs"].to(self.device), batch["action"].to(self.device)
         rows = idx.tolist() if self.rows_in_place else None
         with torch.no_grad():
             # one member's rows are read as views; several are gathered (K, P)
             one = rows is not None and len(rows) == 1
             old_target = self.target.flat[rows[0]:rows[0] + 1] if one else self.target.gather(idx)
-            q_next = ensemble_forward(self.target.unflatten(old_target), next_obs)
-            q_next = q_next.masked_fill(~self.action_mask[idx].unsqueeze(1), float("-inf")).amax(-1)
-            y = reward + cfg.gamma * (~done).to(q_next.dtype) * q_next
+            y = batch.get("y")
+            if y is None:
+                y = self._td_target(idx, old_target, *(batch[k].to(self.device) for k in ("reward", "next_obs", "done")))
+            else:
+                y = y.to(self.device)
             # the gradient written out (the same as autograd's: tests/agents/test_dqn.py), without the
             # autograd engine's bookkeeping and its final concatenation of the layers' gradients
             theta = self.online.flat[rows[0]:rows[0] + 1] if one else self.online.gather(idx)
@@ -235,11 +236,11 @@ class DQNLearner:
         out (td_loss_and_grad). The same step as `update` for the masked-in members, to float rounding."""
         cfg = self.config
         idx = members.to(self.device)
-        obs, next_obs, action, reward, done = (batch[k] for k in ("obs", "next_obs", "action", "reward", "done"))
+        obs, action = batch["obs"], batch["action"]
         old_target = self.target.gather(idx)  # (K, P)
-        q_next = ensemble_forward(self.target.unflatten(old_target), next_obs)
-        q_next = q_next.masked_fill(~self.action_mask[idx].unsqueeze(1), float("-inf")).amax(-1)
-        y = reward + cfg.gamma * (~done).to(q_next.dtype) * q_next
+        y = batch.get("y")
+        if y is None:
+            y = self._td_target(idx, old_target, batch["reward"], batch["next_obs"], batch["done"])
         theta = self.online.flat.index_select(0, idx)
         q_sa, per_member, grad = td_loss_and_grad(self.online, theta, obs, action, y, cfg.huber)
         new_theta = self._adam_step(idx, theta, grad, mask)
@@ -249,6 +250,13 @@ class DQNLearner:
         self.target_update_count.index_copy_(0, idx, torch.where(sync, torch.zeros_like(count), count))
         self.target.flat.index_copy_(0, idx, torch.where(sync.unsqueeze(1), new_theta, old_target))
         return UpdateStats(per_member, q_sa.mean(1), (y - q_sa).abs().mean(1))
+
+    def _td_target(self, idx: torch.Tensor, target_rows: torch.Tensor, reward: torch.Tensor,
+                   next_obs: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
+        """y = r + gamma (1 - done) max_{a' in A_m} Q_target,m(s', a') (Algorithm 1), (K, N)."""
+        q_next = ensemble_forward(self.target.unflatten(target_rows), next_obs)
+        q_next = q_next.masked_fill(~self.action_mask[idx].unsqueeze(1), float("-inf")).amax(-1)
+        return reward + self.config.gamma * (~done).to(q_next.dtype) * q_next
 
     def _adam_step(self, idx: torch.Tensor, theta: torch.Tensor, grad: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """The static update's Adam with per-member gradient-norm clipping on gathered rows theta, grad (K, P),
