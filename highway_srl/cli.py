@@ -47,30 +47,52 @@ def _cmd_render(args) -> int:
     return 0
 
 
+def _bench_sim(args) -> tuple[dict, str]:
+    from highway_srl.experiments import bench
+
+    bench.check_sim_memory(args.scenario, args.traffic, args.envs, args.device, args.adversarial)
+    result = bench.bench_sim(args.scenario, args.traffic, args.envs, args.steps, args.device, args.adversarial,
+                             compile=args.compile, processes=args.processes)
+    line = (f"{result['scenario']} level {result['traffic']}: {result['envs']} envs x {result['steps']} steps on "
+            f"{result['device']}: {result['env_steps_per_s']:,.0f} env-steps/s = "
+            f"{result['sim_s_per_wall_s']:,.0f} simulated s per wall s"
+            + (f" ({args.processes} processes)" if args.processes > 1 else ""))
+    return result, line
+
+
+def _bench_train(args) -> tuple[dict, str]:
+    if args.processes > 1:
+        raise ValueError("--processes is for bench sim (training steps its world in its own process)")
+    from highway_srl.experiments.train import bench_train
+
+    result = bench_train(method=args.method, scenario=args.scenario, traffic=args.traffic, envs=args.envs,
+                         steps=args.steps, device=args.device, seeds=args.seeds, compile=args.compile,
+                         static=args.static)
+    rates = ", ".join(f"{name} {form['env_steps_per_s']:,.0f} ({form['env_steps_per_s_with_compile']:,.0f} with "
+                      f"{form['warmup_s']:.0f} s warm-up)" for name, form in result["forms"].items())
+    line = (f"train {result['method']} on {result['scenario']} ({result['envs']} envs, {result['seeds']} seed(s), "
+            f"{result['device']}): env-steps/s {rates}; "
+            f"projected {result['projected_paper_run_min']:.1f} min for 5e5 steps")
+    return result, line
+
+
 def _cmd_bench(args) -> int:
     from highway_srl.experiments import bench
 
-    if args.what == "sim":
-        bench.check_sim_memory(args.scenario, args.traffic, args.envs, args.device, args.adversarial)
-        result = bench.bench_sim(args.scenario, args.traffic, args.envs, args.steps, args.device, args.adversarial,
-                                 compile=args.compile, processes=args.processes)
-        line = (f"{result['scenario']} level {result['traffic']}: {result['envs']} envs x {result['steps']} steps on "
-                f"{result['device']}: {result['env_steps_per_s']:,.0f} env-steps/s = "
-                f"{result['sim_s_per_wall_s']:,.0f} simulated s per wall s"
-                + (f" ({args.processes} processes)" if args.processes > 1 else ""))
-    else:
-        if args.processes > 1:
-            raise ValueError("--processes is for bench sim (training steps its world in its own process)")
-        from highway_srl.experiments.train import bench_train
+    run = _bench_sim if args.what == "sim" else _bench_train
+    if not args.contended:
+        result, line = run(args)
+    else:  # idle, then beside a busy process on every core (what a shared machine does to the figure)
+        lines = []
 
-        result = bench_train(method=args.method, scenario=args.scenario, traffic=args.traffic, envs=args.envs,
-                             steps=args.steps, device=args.device, seeds=args.seeds, compile=args.compile,
-                             static=args.static)
-        rates = ", ".join(f"{name} {form['env_steps_per_s']:,.0f} ({form['env_steps_per_s_with_compile']:,.0f} with "
-                          f"{form['warmup_s']:.0f} s warm-up)" for name, form in result["forms"].items())
-        line = (f"train {result['method']} on {result['scenario']} ({result['envs']} envs, {result['seeds']} seed(s), "
-                f"{result['device']}): env-steps/s {rates}; "
-                f"projected {result['projected_paper_run_min']:.1f} min for 5e5 steps")
+        def measure() -> dict:
+            one, text = run(args)
+            lines.append(text)
+            return one
+
+        result = bench.contended(measure)
+        line = (f"idle: {lines[0]}\ncontended ({result['neighbours']} busy processes): {lines[1]}\n"
+                f"contended / idle: {result['ratio']:.2f} ({bench.machine()['threads']} thread(s))")
     print(json.dumps(result) if args.json else line)
     return 0
 
@@ -111,10 +133,33 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default="cpu")
     commands.step_form_args(p)
     p.add_argument("--json", action="store_true")
+    p.add_argument("--contended", action="store_true",
+                   help="measure idle, then beside a busy process on every core, and report both")
     p.set_defaults(func=_cmd_bench)
 
     commands.add_parsers(sub, _scenario)
+    for p in sub.choices.values():
+        p.add_argument("--threads", type=positive, default=None,
+                       help="torch intra-op threads in this process (default: OMP_NUM_THREADS if set, else 1; "
+                            "parallelism comes from processes: --jobs, --processes)")
     return parser
+
+
+def set_threads(requested: int | None) -> int:
+    """One intra-op thread per process unless asked otherwise (--threads, then OMP_NUM_THREADS). Why: the CPU
+    step is ~1,500 small operations, each an OpenMP region that waits for its slowest thread; with a second
+    thread and another process busy on the cores, bench sim at 4,096 envs fell 20-35x (docs/benchmarks.md),
+    while one thread loses only ~1.1x on an idle machine."""
+    import os
+
+    import torch
+
+    threads = requested
+    if threads is None:
+        env = os.environ.get("OMP_NUM_THREADS", "")
+        threads = int(env) if env.isdigit() and int(env) > 0 else 1
+    torch.set_num_threads(threads)
+    return threads
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -124,6 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as done:  # --help, --version, or a one-line usage error (Parser.error) already printed
         return done.code if isinstance(done.code, int) else 2
     try:
+        set_threads(args.threads)
         return args.func(args)
     except KeyboardInterrupt:
         print("highway-srl: interrupted", file=sys.stderr)

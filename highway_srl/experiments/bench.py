@@ -144,3 +144,39 @@ def bench_sim(scenario: str, traffic: str, envs: int, steps: int, device: str, a
         "env_steps_per_s_with_compile": round(envs * (steps + warmup) / (end - start), 1),
         "machine": machine(),
     }
+
+
+def _spin() -> None:
+    while True:
+        pass
+
+
+def contended(measure, neighbours: int | None = None) -> dict:
+    """measure() (a bench result dict) on an idle machine, then again beside `neighbours` busy processes
+    (default: one per core; each spins in pure Python at the same priority, like another user's job).
+    Returns {"idle": ..., "contended": ..., "ratio": contended / idle env-steps/s, "neighbours": n}."""
+    import multiprocessing
+
+    n = neighbours if neighbours is not None else (os.cpu_count() or 1)
+    idle = measure()
+    ctx = multiprocessing.get_context("spawn")  # a fork would copy torch's thread pools into the spinners
+    spinners = [ctx.Process(target=_spin, daemon=True) for _ in range(n)]
+    for p in spinners:
+        p.start()
+    try:
+        time.sleep(0.5)  # let them be scheduled before the clock starts
+        busy = measure()
+    finally:
+        for p in spinners:
+            p.terminate()
+        for p in spinners:
+            p.join()
+    return {"idle": idle, "contended": busy, "neighbours": n,
+            "ratio": rate_of(busy) / max(rate_of(idle), 1e-9)}
+
+
+def rate_of(result: dict) -> float:
+    """The headline env-steps/s of a bench sim or bench train result (train: its first step form)."""
+    if "env_steps_per_s" in result:
+        return float(result["env_steps_per_s"])
+    return float(next(iter(result["forms"].values()))["env_steps_per_s"])
