@@ -286,7 +286,7 @@ class DQNLearner:
         gradients grad (K, P), and their weight, first- and second-moment rows (K tensors (P,) each, stepped
         in place). torch's fused Adam kernel (what torch.optim.Adam(fused=True) runs): one pass over a row
         where the elementwise form (_adam_step) takes eight, each through memory, since a member's rows
-        (1.2 MB) and the batch's activations do not stay in a 2 MB cache (docs/benchmarks.md, session 14).
+        (1.2 MB) and the batch's activations do not stay in a 2 MB cache (docs/log/benchmarks-history.md, session 14).
         Same step as _adam_step to float rounding (tests/agents/test_dqn.py);
         the clipping's factor enters as the kernel's gradient divisor."""
         cfg = self.config

@@ -18,7 +18,7 @@ Waiting spins for up to SPIN_S before it blocks, on both sides. A blocked proces
 scheduler: on the 2-core hosts measured, waking the workers and being woken by them cost 0.3-0.5 ms of a
 9 ms step at 4,096 envs (the parent's send alone took 0.1-0.6 ms: the woken worker preempted it), and P
 workers besides an idle parent were P + 1 processes for P cores. Stepping the first slice here and
-spinning while the others finish made World(processes=2) 1.03-1.09x faster (docs/benchmarks.md, session 15).
+spinning while the others finish made World(processes=2) 1.03-1.09x faster (docs/log/benchmarks-history.md, session 15).
 A spin is bounded, so a world left idle between steps costs at most SPIN_S of each core after a step.
 """
 

@@ -9,7 +9,7 @@ only place where the two differ. `sel` is None in the compact form and a (M,) bo
 Where the selections are large (lateral control, MOBIL, the aborts: thousands of entries at 2,048 envs)
 their values are read and written through flat (row-major) indices, env * C + column (flat_index), with
 take_flat and put_flat (index_select / take, index_copy_): on the CPU two-tensor advanced indexing
-(t[bb, ii], put) takes a general path that costs 2-4x as much there (docs/benchmarks.md, session 16). The
+(t[bb, ii], put) takes a general path that costs 2-4x as much there (docs/log/benchmarks-history.md, session 16). The
 rarer rules (lane ends, cooperative merging, the adversary) keep the plainer t[bb, ii].
 """
 
@@ -32,7 +32,7 @@ def entries(mask: torch.Tensor, static: bool):
 
 # Below this many indices torch.take (one call) beats the three of a flat index_select; above it
 # index_select's gather loop wins (1.4x at 10^5 indices). `python scripts/cpu_ops.py costs`: 1.2 vs 5.4 us at
-# 26 indices, about even at 5,000 (docs/benchmarks.md, session 12).
+# 26 indices, about even at 5,000 (docs/log/benchmarks-history.md, session 12).
 TAKE_MAX = 4096
 
 
