@@ -478,7 +478,7 @@ def _add_transfer(sub) -> None:
     p.add_argument("--simulators", default=",".join(tr.SIMULATORS))
     p.add_argument("--steps", type=int, default=tr.TransferSettings.steps, help="training env steps per run")
     p.add_argument("--envs", type=int, default=tr.TransferSettings.envs)
-    p.add_argument("--episodes", type=int, default=tr.TransferSettings.episodes,
+    p.add_argument("--episodes", type=positive, default=tr.TransferSettings.episodes,
                    help="deployment episodes per simulator")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--jobs", type=positive, default=1, help="jobs at a time (worker processes, one thread each)")

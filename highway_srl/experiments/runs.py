@@ -68,7 +68,8 @@ def read_text(path: Path) -> str:
 
 
 def open_state(root: Path, name: str, what: str) -> dict | None:
-    """The state file `name` of a study folder, None if the folder is new (empty or missing); one-line
+    """The state file `name` of a study folder, None if the folder is new (missing, or empty but for a lock
+    file: lock_run); one-line
     errors for a damaged file or a folder that holds something else."""
     path = root / name
     if path.exists():
@@ -76,7 +77,7 @@ def open_state(root: Path, name: str, what: str) -> dict | None:
             return read_json(path)
         except ValueError as err:
             raise ValueError(f"{path} is damaged ({err}); move it away to start afresh") from None
-    if root.exists() and (not root.is_dir() or any(root.iterdir())):
+    if root.exists() and (not root.is_dir() or holds_other_files(root)):
         raise ValueError(f"--out {str(root)!r} exists and holds no {what} ({name}); choose an empty or new folder")
     return None
 
@@ -189,12 +190,16 @@ def holds_other_files(folder: Path, ignore: tuple[str, ...] = ()) -> bool:
 
 
 @contextlib.contextmanager
-def lock_run(folder: Path):
-    """Hold an advisory lock on a run folder while a process writes in it.
+def lock_run(folder: Path, in_use: str | None = None):
+    """Hold an advisory lock on a run folder (or a study folder) while a process writes in it.
 
     flock: the kernel drops it when the process dies, so a lock left by a killed run never blocks a resume.
     The lock file itself stays (empty but for the holder's pid) and is ignored by the folder checks.
+    in_use: the one-line refusal when another process holds it, {pid} standing for the holder's pid.
     """
+    if in_use is None:
+        in_use = (f"run folder {str(folder)!r} is in use by another process (pid {{pid}}); "
+                  "wait for it to finish or choose another --out")
     path = folder / LOCK_FILE
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
     try:
@@ -202,8 +207,7 @@ def lock_run(folder: Path):
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
-            raise ValueError(f"run folder {str(folder)!r} is in use by another process (pid {holder}); "
-                             "wait for it to finish or choose another --out") from None
+            raise ValueError(in_use.replace("{pid}", holder)) from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         yield

@@ -19,10 +19,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from highway_srl.constants import TRAFFIC_LEVELS
-from highway_srl.experiments.runs import read_jsonl
 from highway_srl.study import stats as S
 from highway_srl.study.jobs import Job
-from highway_srl.study.tables import Result, Results, load_results
+from highway_srl.study.tables import Result, Results, job_episodes, load_results
 
 STUDY_FILE = "study.json"
 SEED_FREE = ("name", "expected_cost", "seeds", "profiles")  # budget settings a chunk may choose for itself
@@ -36,7 +35,7 @@ class MergedResult(Result):
     folders: list[Path] = field(default_factory=list)
 
     def episodes(self) -> list[dict]:
-        return [e for folder in self.folders for e in read_jsonl(folder / "episodes.jsonl")]
+        return [e for folder in self.folders for e in job_episodes(folder, self.job)]
 
 
 def chunk_folders(root: Path) -> list[Path]:

@@ -6,6 +6,7 @@ Layout of a study folder (`--out`):
   runs/SCENE/VARIANT/        a training run folder (highway_srl.experiments.train) + eval.json + job.json
   tables/, figures/          the artefacts (highway_srl.study.tables / figures)
   report.md, report.html
+  .lock                      held (flock) by the running reproduce: a second one on the folder is refused
 
 A job is done when its folder holds metrics.json and eval.json; done jobs are never run again. A job whose
 training was interrupted resumes from its last checkpoint (train_run(resume=True)); one that was trained
@@ -26,7 +27,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
-from highway_srl.experiments.runs import open_state, provenance, read_json, write_json
+from highway_srl.experiments.runs import lock_run, open_state, provenance, read_json, write_json
 from highway_srl.study.jobs import Budget, Job, get_budget, job_availability, study_jobs
 from highway_srl.study.tables import job_fraction
 
@@ -331,41 +332,48 @@ def reproduce(budget: str, out: str | Path, jobs: int | None = None, executor: s
     _check_run_options(executor, address, device, workers)
     all_jobs = study_jobs(b, methods, scenes)
     out = Path(out)
-    state = open_study(out, b)
+    open_study(out, b)  # refuses a folder of another kind before a lock file is left in it
     out.mkdir(parents=True, exist_ok=True)
-    state["methods"] = list(methods) if methods else None
-    state["scenes"] = list(scenes) if scenes else None
-    state["machine"] = machine(device)
-    state.update(provenance())
-    invocation = {"started": now(), "executor": executor, "jobs": workers, "device": device, "address": address,
-                  "host": state["machine"]["host"], **provenance(), "ran": 0, "skipped_done": 0, "finished": None,
-                  "wall_s": None}
-    state["invocations"].append(invocation)
-    t0 = time.perf_counter()
+    with lock_run(out, f"--out {str(out)!r} is in use by another reproduce (pid {{pid}})"):
+        state = open_study(out, b)  # again under the lock: the holder before may have changed it
+        state["methods"] = list(methods) if methods else None
+        state["scenes"] = list(scenes) if scenes else None
+        state["machine"] = machine(device)
+        state.update(provenance())
+        invocation = {"started": now(), "executor": executor, "jobs": workers, "device": device, "address": address,
+                      "host": state["machine"]["host"], **provenance(), "ran": 0, "skipped_done": 0, "finished": None,
+                      "wall_s": None}
+        state["invocations"].append(invocation)
+        t0 = time.perf_counter()
 
-    pending = _pending_jobs(all_jobs, out, state, invocation)
-    write_json(out / STUDY_FILE, state)
-    unavailable = [j for j in all_jobs if state["jobs"][j.id]["status"] == "unavailable"]
-    log(f"study {b.name} in {out}: {len(all_jobs)} jobs, {invocation['skipped_done']} done already, "
-        f"{len(pending)} to run, {len(unavailable)} unavailable (method not registered yet)"
-        + (f"; {executor} executor, {workers} at a time (progress: {out}/runs/SCENE/VARIANT/scalars.csv)"
-           if pending else ""))
-    _run_pending(pending, out, state, invocation, t0, executor, address, device, workers, work, log, progress)
+        pending = _pending_jobs(all_jobs, out, state, invocation)
+        write_json(out / STUDY_FILE, state)
+        unavailable = [j for j in all_jobs if state["jobs"][j.id]["status"] == "unavailable"]
+        log(f"study {b.name} in {out}: {len(all_jobs)} jobs, {invocation['skipped_done']} done already, "
+            f"{len(pending)} to run, {len(unavailable)} unavailable (method not registered yet)"
+            + (f"; {executor} executor, {workers} at a time (progress: {out}/runs/SCENE/VARIANT/scalars.csv)"
+               if pending else ""))
+        _run_pending(pending, out, state, invocation, t0, executor, address, device, workers, work, log, progress)
+        log(_job_counts(all_jobs, state))
+        if report:
+            from highway_srl.study.report import write_report
+
+            t1 = time.perf_counter()
+            path = write_report(out)
+            invocation["report_s"] = round(time.perf_counter() - t1, 2)
+            invocation["wall_s"] = round(time.perf_counter() - t0, 2)
+            write_json(out / STUDY_FILE, state)
+            log(f"report: {path}")
+        return state
+
+
+def _job_counts(all_jobs: list[Job], state: dict) -> str:
+    """The line that counts the study's jobs by status."""
     counts: dict[str, int] = {}
     for job in all_jobs:
         counts[state["jobs"][job.id]["status"]] = counts.get(state["jobs"][job.id]["status"], 0) + 1
-    log(f"jobs: {', '.join(f'{n} {s}' for s, n in sorted(counts.items()))}"
-        + ("; run the same command again to retry the others" if set(counts) - {"done"} else ""))
-    if report:
-        from highway_srl.study.report import write_report
-
-        t1 = time.perf_counter()
-        path = write_report(out)
-        invocation["report_s"] = round(time.perf_counter() - t1, 2)
-        invocation["wall_s"] = round(time.perf_counter() - t0, 2)
-        write_json(out / STUDY_FILE, state)
-        log(f"report: {path}")
-    return state
+    return (f"jobs: {', '.join(f'{n} {s}' for s, n in sorted(counts.items()))}"
+            + ("; run the same command again to retry the others" if set(counts) - {"done"} else ""))
 
 
 def report_only(out: str | Path, budget: str | None = None) -> Path:

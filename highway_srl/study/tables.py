@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import os
 import statistics
@@ -23,7 +24,8 @@ from typing import Callable
 from highway_srl.constants import TRAFFIC_LEVELS
 from highway_srl.study import paper_numbers as paper
 from highway_srl.experiments.collisions import CREEP, FORBIDDEN, LANE_CHANGE_CYCLE, OTHER
-from highway_srl.experiments.runs import read_json, read_jsonl
+from highway_srl.experiments.records import check_fields, read_episode_log, read_eval, read_metrics
+from highway_srl.experiments.runs import read_json
 from highway_srl.study.jobs import (ABLATION_SCENE, ABLATIONS, GROUP1_METHODS, GROUP2_SCENES, GROUP3_SCENES,
                                            METHOD_LABELS, MULTILANE_SCENES, OURS, SCENES, TABLE5_METHODS,
                                            TABLE5_SCENES, TRAIN_TRAFFIC, Job)
@@ -80,7 +82,17 @@ class Result:
         return out
 
     def episodes(self) -> list[dict]:
-        return read_jsonl(self.folder / "episodes.jsonl")
+        return job_episodes(self.folder, self.job)
+
+
+def job_episodes(folder: Path, job: Job) -> list[dict]:
+    """A job's training episodes (episodes.jsonl), every row checked (records.read_episode_log): a damaged
+    row is a one-line error naming the file and line. The text after the last newline, a row a running job
+    is appending, is left out."""
+    from highway_srl.experiments.train import max_episode_step
+
+    rows, _ = read_episode_log(folder / "episodes.jsonl", job.seeds, max_episode_step(job.train_config()))
+    return rows
 
 
 class Results:
@@ -123,18 +135,48 @@ def job_fraction(root: Path, job: Job) -> float:
     return min(1.0, max(0.0, step / max(1, job.steps)))
 
 
+STUDY_FIELDS = {"budget": "text", "created": "text?", "version": "text?", "commit": "text?"}
+BUDGET_FIELDS = {"steps": "count", "envs": "count", "learning_starts": "count", "batch_size": "count",
+                 "eval_episodes": "count", "replay_ratio": "number?"}
+STUDY_OBJECTS = {"budget_config": dict, "jobs": dict, "invocations": list, "machine": dict}
+
+
+def read_study(path: Path) -> dict:
+    """A study.json, every field the tables and the report read checked: ValueError in one line naming the
+    file and the field (a `{}` or a field of the wrong type would otherwise make a report of None values)."""
+    state = check_fields(read_json(path), STUDY_FIELDS, str(path), ("created", "version", "commit"))
+    for name, kind in STUDY_OBJECTS.items():
+        if not isinstance(state.get(name, {} if name == "machine" else None), kind):
+            raise ValueError(f"{path}: {name} must be a JSON {'object' if kind is dict else 'list'}, "
+                             f"got {json.dumps(state.get(name))[:40]}")
+    check_fields(state["budget_config"], BUDGET_FIELDS, f"{path}: budget_config", ("replay_ratio",))
+    for name in ("seeds", "group1_levels"):
+        if not isinstance(state["budget_config"].get(name, []), list):
+            raise ValueError(f"{path}: budget_config.{name} must be a JSON list")
+    for n, invocation in enumerate(state["invocations"]):
+        check_fields(invocation, {}, f"{path}: invocations[{n}]")
+    for job_id, entry in state["jobs"].items():
+        where = f"{path}: jobs.{job_id}"
+        check_fields(entry, {"status": "text", "message": "text?"}, where, ("status", "message"))
+        try:
+            Job.from_dict(check_fields(entry.get("job"), {}, f"{where}.job"))
+        except TypeError as err:
+            raise ValueError(f"{where}.job is not a job of this version ({err})") from None
+    return state
+
+
 def load_results(root: str | Path) -> Results:
     root = Path(root)
-    state = read_json(root / "study.json")
+    state = read_study(root / "study.json")
     results = []
-    for entry in state.get("jobs", {}).values():
+    for entry in state["jobs"].values():
         job = Job.from_dict(entry["job"])
         folder = root / job.folder
         res = Result(job, entry.get("status", "pending"), entry.get("message"), folder)
         if (folder / "metrics.json").exists():
-            res.metrics = read_json(folder / "metrics.json")
+            res.metrics = read_metrics(folder / "metrics.json")
         if (folder / "eval.json").exists():
-            res.evaluation = read_json(folder / "eval.json")
+            res.evaluation = read_eval(folder / "eval.json")
         if res.metrics is not None and res.evaluation is not None:
             res.status = "done"
         results.append(res)

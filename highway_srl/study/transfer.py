@@ -123,6 +123,7 @@ def run_transfer(out: str | Path, settings: TransferSettings = TransferSettings(
                  log: Callable[[str], None] = print) -> Path:
     """Run every pending job, then write the table; returns the Markdown table's path."""
     from highway_srl.backends import missing_modules
+    from highway_srl.experiments.bench import check_sim_memory
     from highway_srl.study.runner import machine, now, run_local
 
     settings.check()
@@ -132,6 +133,9 @@ def run_transfer(out: str | Path, settings: TransferSettings = TransferSettings(
     if jobs < 1:
         raise ValueError(f"--jobs must be positive, got {jobs}")
     all_jobs = transfer_jobs(settings, methods, scenes)  # unknown methods and scenes are named first
+    for scene in dict.fromkeys(j.scene for j in all_jobs):  # as evaluate: every episode is an env of one world
+        check_sim_memory(SCENES[scene].scenario, settings.traffic, settings.episodes, device,
+                         SCENES[scene].adversarial, "use fewer --episodes")
     for sim in simulators:  # then what is not installed: a typo is not answered with "pip install"
         missing = missing_modules(sim)
         if missing:

@@ -317,3 +317,28 @@ def _alive(pid: int) -> bool:
     except ProcessLookupError:
         return False
     return True
+
+
+def test_a_second_reproduce_on_one_folder_is_refused_while_report_only_reads_it(tmp_path, capsys):
+    # two reproduce on one --out would both run the pending jobs and overwrite each other's study.json
+    import signal
+    import subprocess
+    import sys
+
+    root = tmp_path / "study"
+    reproduce("smoke", root, jobs=1, work=fakes.fake_work, **QUIET)
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time; from pathlib import Path; from highway_srl.experiments.runs "
+         "import lock_run\nwith lock_run(Path(sys.argv[1])):\n    print('held', flush=True); time.sleep(120)",
+         str(root)], stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        rc, err = _cli(capsys, "--budget", "smoke", "--out", str(root))
+        assert rc == 2 and err == [f"highway-srl: error: --out {str(root)!r} is in use by another reproduce (pid {holder.pid})"]
+        assert main(["reproduce", "--out", str(root), "--report-only"]) == 0  # only reads: takes no lock
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+    finally:
+        holder.kill()
+    state = reproduce("smoke", root, jobs=1, work=fakes.fake_work, **QUIET)  # a killed holder leaves no lock
+    assert len(state["invocations"]) == 2

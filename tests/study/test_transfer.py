@@ -59,7 +59,8 @@ def test_bad_input_gives_a_one_line_error(tmp_path, capsys):
     for argv, words in ((["--scenes", "ring-road"], "unknown scene 'ring-road'"),
                         (["--methods", "ppo"], "unknown method 'ppo'"),
                         (["--simulators", "carla"], "unknown simulator 'carla'"),
-                        (["--episodes", "0"], "--episodes must be positive"),
+                        (["--episodes", "0"], "--episodes: expected a positive integer"),
+                        (["--episodes", str(10**12)], "use fewer --episodes"),  # refused before training
                         (["--steps", "-5"], "--steps must be positive")):
         rc = main(["transfer", *argv, "--out", str(tmp_path / "new")])
         err = capsys.readouterr().err.strip().splitlines()

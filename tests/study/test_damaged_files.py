@@ -1,0 +1,76 @@
+"""A damaged file of a study (study.json, a job's metrics.json, eval.json or episodes.jsonl) stops the
+report with one line naming the file and the field, exit status 2, and leaves the report it would have
+replaced as it was: never a traceback, a table quietly missing rows, or a report of None values."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+import study_fakes as fakes
+
+from highway_srl.cli import main
+from highway_srl.study.jobs import OURS
+from highway_srl.study.runner import reproduce
+from highway_srl.study.tables import load_results
+
+
+@pytest.fixture(scope="module")
+def good_study(tmp_path_factory):
+    root = tmp_path_factory.mktemp("good") / "study"
+    reproduce("smoke", root, jobs=1, work=fakes.fake_work, log=lambda s: None, report=False)
+    assert main(["reproduce", "--out", str(root), "--report-only"]) == 0
+    return root
+
+
+def _edit_json(path, change) -> None:
+    data = json.loads(path.read_text())
+    change(data)
+    path.write_text(json.dumps(data))
+
+
+def _edit_first_line(path, change) -> None:
+    lines = path.read_text().splitlines(keepends=True)
+    row = json.loads(lines[0])
+    change(row)
+    path.write_text(json.dumps(row) + "\n" + "".join(lines[1:]))
+
+
+DAMAGE = {  # name: (file under the job folder or the study, how it is damaged, what the line must say)
+    "metrics-mean-text": ("metrics.json", lambda p: _edit_json(p, lambda d: d["mean"].update(T_c="high")),
+                          "metrics.json: mean: T_c must be a number from 0 to 1"),
+    "metrics-no-per-seed": ("metrics.json", lambda p: _edit_json(p, lambda d: d.pop("per_seed")),
+                            "metrics.json: per_seed must be a JSON object"),
+    "eval-rate-above-1": ("eval.json", lambda p: _edit_json(p, lambda d: d["levels"]["C"]["C_r"].update(value=1.5)),
+                          "eval.json: levels.C.C_r: value must be a number from 0 to 1"),
+    "eval-not-json": ("eval.json", lambda p: p.write_text('{"method": '), "eval.json is not valid JSON"),
+    "episode-other-seed": ("episodes.jsonl", lambda p: _edit_first_line(p, lambda r: r.update(seed=7)),
+                           "episodes.jsonl line 1 is damaged: seed 7 is not one of the run's seeds"),
+    "episode-text-return": ("episodes.jsonl", lambda p: _edit_first_line(p, lambda r: r.update({"return": "x"})),
+                            "episodes.jsonl line 1 is damaged: the row: return must be a finite number"),
+    "study-empty": ("../study.json", lambda p: p.write_text("{}"), "study.json: budget is missing"),
+    "study-jobs-list": ("../study.json", lambda p: _edit_json(p, lambda d: d.update(jobs=[])),
+                        "study.json: jobs must be a JSON object, got []"),
+    "study-budget-config-null": ("../study.json", lambda p: _edit_json(p, lambda d: d.update(budget_config=None)),
+                                 "study.json: budget_config must be a JSON object, got null"),
+    "study-invocations-null": ("../study.json", lambda p: _edit_json(p, lambda d: d.update(invocations=None)),
+                               "study.json: invocations must be a JSON list, got null"),
+    "study-steps-text": ("../study.json", lambda p: _edit_json(p, lambda d: d["budget_config"].update(steps="1e3")),
+                         "study.json: budget_config: steps must be a non-negative integer"),
+}
+
+
+@pytest.mark.parametrize("case", DAMAGE)
+def test_a_damaged_file_stops_the_report_with_one_line_naming_it(case, good_study, tmp_path, capsys):
+    root = tmp_path / "study"
+    shutil.copytree(good_study, root)
+    name, damage, says = DAMAGE[case]
+    ours = next(r for r in load_results(root) if r.job.method == OURS and not r.job.options and r.done)
+    path = (root / "study.json") if name.startswith("../") else ours.folder / name
+    damage(path)
+    report = (root / "report.md").read_text()
+    rc = main(["reproduce", "--out", str(root), "--report-only"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and says in err[0] and str(path) in err[0], err
+    assert (root / "report.md").read_text() == report
