@@ -9,7 +9,7 @@ import sys
 import pytest
 
 from highway_srl.agents.dqn import DQNConfig
-from highway_srl.agents.trainer import TrainConfig
+from highway_srl.agents.trainer import TrainConfig, Trainer
 from highway_srl.experiments import train as train_mod
 
 LEARNING_STARTS = 400
@@ -102,3 +102,18 @@ def test_a_run_without_tensorboard_says_so_once_and_writes_no_tb(tmp_path, monke
     assert len(notices) == 1 and notices[0].startswith("note: ") and "pip install tensorboard" in notices[0]
     assert not (tmp_path / "run" / "tb").exists()
     assert len((tmp_path / "run" / "scalars.csv").read_text().splitlines()) == 4  # the header and 3 rows
+
+
+def test_a_checkpoint_window_without_episode_lengths_still_restores(tmp_path):
+    """A resume checkpoint written before lengths were kept holds [return, collision] pairs: they load, and
+    mean_length is over the entries that have a length; a bad length is one clear error."""
+    trainer = Trainer(TrainConfig(steps=300, envs=2))
+    log = train_mod.TrainingLog(tmp_path, trainer)
+    state = {"step": 0, "ended": 2, "recent": [[1.5, False], [2.5, True, 40]], "usage": [0] * len(log.usage)}
+    log.restore(state, trainer, "meta.json: log")
+    assert log.recent == [(1.5, False, None), (2.5, True, 40)]
+    values = log.log(trainer)
+    assert values["mean_length"] == 40 and values["mean_return"] == 2.0
+    with pytest.raises(ValueError, match=r"meta.json: log: recent must be a list of up to \d+ \[return, collision, length\]"):
+        log.restore({**state, "recent": [[1.5, False, -1]]}, trainer, "meta.json: log")
+    log.close()
