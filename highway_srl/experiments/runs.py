@@ -8,6 +8,7 @@ import json
 import math
 import os
 import subprocess
+import tomllib
 from pathlib import Path
 
 from highway_srl import __version__
@@ -15,21 +16,42 @@ from highway_srl.agents.checkpoint import write_atomic
 from highway_srl.agents.trainer import TrainConfig
 
 
-def commit() -> str | None:
-    """The git commit of the installed source tree, if it is a checkout."""
-    here = Path(__file__).resolve().parent
+def _git(folder: Path, *args: str) -> str | None:
+    """git's output in folder (stripped), None if git is missing, fails or the folder is no checkout."""
     try:
-        out = subprocess.run(["git", "-C", str(here), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5)
+        out = subprocess.run(["git", "-C", str(folder), *args], capture_output=True, text=True, timeout=5)
     except (OSError, subprocess.SubprocessError):
         return None
-    if out.returncode != 0:
+    return out.stdout.strip() if out.returncode == 0 else None
+
+
+def is_own_checkout(top: Path, package: Path) -> bool:
+    """Whether the git top level `top` is a highway-srl source tree holding the imported `package` itself:
+    its pyproject.toml names highway-srl and the package lies at top/highway_srl. A wheel installed into a
+    user's own repository (a virtual environment inside it) is no such tree: that HEAD is not our code."""
+    try:
+        name = tomllib.loads((top / "pyproject.toml").read_text()).get("project", {}).get("name")
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return False
+    return name == "highway-srl" and (top / "highway_srl").resolve() == package
+
+
+def commit(package: Path | None = None) -> str | None:
+    """The git commit of the highway-srl checkout the package (default: the imported one) was loaded from,
+    "-dirty" appended if tracked files differ from it; None when it was not loaded from one (is_own_checkout)."""
+    package = (package or Path(__file__).resolve().parents[1]).resolve()
+    top = _git(package, "rev-parse", "--show-toplevel")
+    if top is None or not is_own_checkout(Path(top), package):
         return None
-    dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
-                           capture_output=True, text=True, timeout=5).stdout.strip()
-    return out.stdout.strip() + ("-dirty" if dirty else "")
+    head = _git(package, "rev-parse", "HEAD")
+    if head is None:
+        return None
+    dirty = _git(package, "status", "--porcelain", "--untracked-files=no")
+    return head + ("-dirty" if dirty else "")
 
 
 def provenance() -> dict:
+    """The version, and the commit where the code runs from a highway-srl checkout (else null: commit)."""
     return {"version": __version__, "commit": commit()}
 
 

@@ -5,7 +5,9 @@ Run folder layout:
   .lock              advisory lock (flock) held while a process trains here
   episodes.jsonl     one line per finished training episode
   scalars.csv        a row every 2,000 env steps: speed, ε, return, collision-free rate, loss, Q, TD error, expert
-                     usage (TrainingLog); tb/ the same and per-episode points in TensorBoard, if it is installed
+                     usage, episode length, learning rate, gradient updates (TrainingLog)
+  tb/                TensorBoard, if it is installed: tb/all-seeds the rows of scalars.csv, tb/seed-N a point per
+                     finished episode of seed N
   model/             final weights (model.safetensors + meta.json), what evaluate and render load
   resume/            full state at the last checkpoint (weights, optimiser, buffers, worlds, RNG; meta.json also the
                      training log's cadence and running window and the episodes logged); removed at the end
@@ -117,10 +119,14 @@ class TrainingLog:
     A row every LOG_EVERY env steps: env_steps (per seed), steps_per_s (env steps/s, all seeds),
     episodes_per_s, epsilon, mean_return and collision_free (the last RECENT_EPISODES episodes), episodes
     (how many that is), loss, q_mean, td_error (means per member update since the last row), usage/NAME
-    (each expert's share of the decisions since the last row, all seeds; usage/fallback: no expert acted).
-    A value that does not exist yet (no episode has ended, no update was made) is an empty cell and no
-    TensorBoard point. TensorBoard also gets a point per finished episode at its env step: episode/return,
-    episode/collision, episode/avg_speed (episodes.jsonl holds the same with the seed). Reading the values
+    (each expert's share of the decisions since the last row, all seeds; usage/fallback: no expert acted),
+    mean_length (env steps per episode over the same window as mean_return), lr (the learning rate),
+    updates (gradient updates of all members so far); later columns are appended after these, so a
+    reader that takes the cells by the header's names reads every version. A value that does not exist
+    yet (no episode has ended, no update was made) is an empty cell and no TensorBoard point. TensorBoard
+    runs: tb/all-seeds gets the rows (values over all seeds), tb/seed-N a point per finished episode of
+    seed N at its env step: episode/return, episode/collision, episode/avg_speed, episode/length (one run
+    per seed, so two seeds' points at one step do not collide). Reading the values
     is the row's host read (the learner's stats are summed on the device), with check_finite's of the
     weights beside it. Its state (state(), restore()) is part of the resume checkpoint, so that a resumed
     run writes the rows an uninterrupted one does.
@@ -132,9 +138,12 @@ class TrainingLog:
         again), state: the checkpoint's log state (state()), drop_damaged: records.scalar_rows'. Everything
         is checked before scalars.csv is rewritten; self.note tells what was dropped besides later rows."""
         self.columns = ["env_steps", "steps_per_s", "episodes_per_s", "epsilon", "mean_return", "collision_free",
-                        "episodes", *UpdateLog.FIELDS, *_usage_tags(usage_shares(trainer.usage.cpu(), trainer))]
+                        "episodes", *UpdateLog.FIELDS, *_usage_tags(usage_shares(trainer.usage.cpu(), trainer)),
+                        "mean_length", "lr", "updates"]
         self.path = out / "scalars.csv"
-        self.recent: list[tuple[float, bool]] = []  # (return, collision) of the last RECENT_EPISODES episodes
+        # (return, collision, length) of the last RECENT_EPISODES episodes (length None: restored from a
+        # checkpoint written before lengths were kept)
+        self.recent: list[tuple[float, bool, int | None]] = []
         self.ended, self.step, self.time = 0, trainer.env_steps, time.perf_counter()
         self.usage = trainer.usage.cpu().clone()  # a copy: on the CPU .cpu() is the counter itself
         kept, self.note = self._kept_rows(keep_until, drop_damaged)
@@ -146,15 +155,7 @@ class TrainingLog:
                                  f"checkpoint's at {self.step:,} (the file was cut or edited); nothing was changed "
                                  "(--drop-damaged continues with the rows it holds)")
         write_atomic(self.path, (",".join(self.columns) + "\n" + "".join(kept)).encode())
-        self.tb = None
-        try:  # TensorBoard is optional
-            from torch.utils.tensorboard import SummaryWriter
-
-            # a resume drops the events after the checkpoint's step (those at it were logged before it was saved)
-            purge = None if keep_until is None else keep_until + 1
-            self.tb = SummaryWriter(str(out / "tb"), purge_step=purge)
-        except Exception:  # noqa: BLE001 - tensorboard not installed: the CSV is enough
-            self.tb = None
+        self.tb, self.tb_seeds = tensorboard_writers(out / "tb", trainer.config.seeds, keep_until)
 
     def _kept_rows(self, keep_until: int | None, drop_damaged: bool) -> tuple[list[str], str | None]:
         """On a resume, the rows up to keep_until (checked: records.scalar_rows), each value under its column's
@@ -174,7 +175,7 @@ class TrainingLog:
         """What the next rows depend on besides the trainer (the resume checkpoint's meta "log"): the step of
         the last row (the cadence), the running window and the usage counts at the last row. JSON floats
         round-trip exactly, so a resumed run's rows equal an uninterrupted run's."""
-        return {"step": self.step, "ended": self.ended, "recent": [[r, c] for r, c in self.recent],
+        return {"step": self.step, "ended": self.ended, "recent": [list(e) for e in self.recent],
                 "usage": [int(u) for u in self.usage]}
 
     def restore(self, state: dict, trainer: Trainer, where: str) -> None:
@@ -184,13 +185,13 @@ class TrainingLog:
         recent, usage = state.get("recent"), state.get("usage")
         if state["step"] > trainer.env_steps:
             raise ValueError(f"{where}: step {state['step']:,} is past the checkpoint's step {trainer.env_steps:,}")
-        if not (isinstance(recent, list) and len(recent) <= RECENT_EPISODES and all(
-                isinstance(e, list) and len(e) == 2 and is_finite_number(e[0]) and isinstance(e[1], bool) for e in recent)):
-            raise ValueError(f"{where}: recent must be a list of up to {RECENT_EPISODES} [return, collision] pairs")
+        if not (isinstance(recent, list) and len(recent) <= RECENT_EPISODES and all(_window_entry(e) for e in recent)):
+            raise ValueError(f"{where}: recent must be a list of up to {RECENT_EPISODES} [return, collision, length] "
+                             "entries")
         if not (isinstance(usage, list) and len(usage) == len(self.usage) and all(is_int(u) and u >= 0 for u in usage)):
             raise ValueError(f"{where}: usage must be a list of {len(self.usage)} non-negative counts")
         self.step, self.ended = state["step"], state["ended"]
-        self.recent = [(float(r), c) for r, c in recent]
+        self.recent = [(float(e[0]), e[1], e[2] if len(e) == 3 else None) for e in recent]
         self.usage = torch.tensor(usage, dtype=self.usage.dtype)
 
     def due(self, trainer: Trainer) -> bool:
@@ -198,13 +199,15 @@ class TrainingLog:
         return trainer.env_steps - self.step >= LOG_EVERY
 
     def episodes(self, finished_eps: list[Episode]) -> None:
-        self.recent = (self.recent + [(e.ret, e.collision) for e in finished_eps])[-RECENT_EPISODES:]
+        self.recent = (self.recent + [(e.ret, e.collision, e.length) for e in finished_eps])[-RECENT_EPISODES:]
         self.ended += len(finished_eps)
-        if self.tb is not None:
-            for e in finished_eps:
-                self.tb.add_scalar("episode/return", e.ret, e.step)
-                self.tb.add_scalar("episode/collision", float(e.collision), e.step)
-                self.tb.add_scalar("episode/avg_speed", e.avg_speed, e.step)
+        for e in finished_eps:
+            if e.seed in self.tb_seeds:
+                tb = self.tb_seeds[e.seed]
+                tb.add_scalar("episode/return", e.ret, e.step)
+                tb.add_scalar("episode/collision", float(e.collision), e.step)
+                tb.add_scalar("episode/avg_speed", e.avg_speed, e.step)
+                tb.add_scalar("episode/length", e.length, e.step)
 
     def log(self, trainer: Trainer) -> dict:
         """Write one row at trainer.env_steps; returns its values (only those that exist)."""
@@ -213,16 +216,20 @@ class TrainingLog:
         values = {"steps_per_s": (step - self.step) * len(trainer.config.seeds) / wall,
                   "episodes_per_s": self.ended / wall, "epsilon": trainer.config.dqn.epsilon(step)}
         if self.recent:
-            values["mean_return"] = sum(r for r, _ in self.recent) / len(self.recent)
-            values["collision_free"] = sum(not c for _, c in self.recent) / len(self.recent)
+            values["mean_return"] = sum(e[0] for e in self.recent) / len(self.recent)
+            values["collision_free"] = sum(not e[1] for e in self.recent) / len(self.recent)
+        lengths = [e[2] for e in self.recent if e[2] is not None]
+        if lengths:
+            values["mean_length"] = sum(lengths) / len(lengths)
         values["episodes"] = len(self.recent)
         values.update(trainer.update_log.read())
         if int((usage - self.usage).sum()) > 0:
             values.update(_usage_tags(usage_shares(usage - self.usage, trainer)))
+        values["lr"] = trainer.config.dqn.lr
+        values["updates"] = int(trainer.learner.adam_step.double().sum())  # float32 counts, exact per member
         self.ended, self.step, self.time, self.usage = 0, step, now, usage
-        cell = lambda v: str(round(v, 5)) if isinstance(v, float) else str(v)  # noqa: E731
         with open(self.path, "a") as f:
-            f.write(",".join([str(step)] + [cell(values[k]) if k in values else "" for k in self.columns[1:]]) + "\n")
+            f.write(",".join([str(step)] + [_cell(k, values[k]) if k in values else "" for k in self.columns[1:]]) + "\n")
         if self.tb is not None:
             for k, v in values.items():
                 self.tb.add_scalar(k, v, step)
@@ -230,12 +237,46 @@ class TrainingLog:
 
     def flush(self) -> None:
         """TensorBoard's queued events to disk (before a checkpoint: a kill after it loses none of them)."""
-        if self.tb is not None:
-            self.tb.flush()
+        for tb in self.writers():
+            tb.flush()
 
     def close(self) -> None:
-        if self.tb is not None:
-            self.tb.close()  # flushes the events
+        for tb in self.writers():
+            tb.close()  # flushes the events
+
+    def writers(self) -> list:
+        return ([] if self.tb is None else [self.tb]) + list(self.tb_seeds.values())
+
+
+def _cell(column: str, value) -> str:
+    """A scalars.csv cell: floats to 5 decimals, the learning rate (often below 1e-5) to 6 significant digits."""
+    if column == "lr":
+        return f"{value:.6g}"
+    return str(round(value, 5)) if isinstance(value, float) else str(value)
+
+
+def _window_entry(entry) -> bool:
+    """A checkpoint's running-window entry: [return, collision, length], or [return, collision] from a
+    checkpoint written before lengths were kept."""
+    return (isinstance(entry, list) and len(entry) in (2, 3) and is_finite_number(entry[0])
+            and isinstance(entry[1], bool) and (len(entry) == 2 or (is_int(entry[2]) and entry[2] >= 0)))
+
+
+def tensorboard_writers(folder: Path, seeds, keep_until: int | None) -> tuple:
+    """(the writer of folder/all-seeds, {seed: the writer of folder/seed-N}); (None, {}) and a one-line
+    notice on stderr when TensorBoard cannot be loaded (it is optional: scalars.csv holds the rows).
+    keep_until: a resume's checkpoint step; the events after it are dropped (those at it were logged
+    before it was saved)."""
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except Exception as err:  # noqa: BLE001 - not installed (ImportError) or a broken install: the CSV is enough
+        reason = str(err).splitlines()[0] if str(err) else type(err).__name__
+        print(f"note: {folder} is not written: TensorBoard cannot be loaded ({reason}); "
+              "pip install tensorboard for it", file=sys.stderr)
+        return None, {}
+    purge = None if keep_until is None else keep_until + 1
+    return (SummaryWriter(str(folder / "all-seeds"), purge_step=purge),
+            {seed: SummaryWriter(str(folder / f"seed-{seed}"), purge_step=purge) for seed in seeds})
 
 
 def finished(out: Path) -> bool:

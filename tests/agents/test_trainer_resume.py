@@ -121,7 +121,8 @@ def _tb_scalars(folder: Path) -> dict:
 def _same_run_folder(a: Path, b: Path) -> None:
     """Every file of two run folders the same: bytes, or (metrics.json, model/meta.json, scalars.csv) every
     value but the wall-clock ones; tb/ the same scalars (its event files are named by time and host)."""
-    files = lambda f: sorted(str(p.relative_to(f)) for p in f.rglob("*") if p.is_file() and p.parent.name != "tb")  # noqa: E731
+    files = lambda f: sorted(str(p.relative_to(f)) for p in f.rglob("*")  # noqa: E731
+                             if p.is_file() and p.relative_to(f).parts[0] != "tb")
     assert files(a) == files(b)
     for name in files(a):
         if name == ".lock":  # the holder's pid
@@ -133,7 +134,10 @@ def _same_run_folder(a: Path, b: Path) -> None:
         else:
             assert (a / name).read_bytes() == (b / name).read_bytes(), name
     if (a / "tb").exists() or (b / "tb").exists():
-        assert _tb_scalars(a / "tb") == _tb_scalars(b / "tb")
+        runs = sorted(p.name for p in (a / "tb").iterdir())  # tb/all-seeds and one run per seed
+        assert runs == sorted(p.name for p in (b / "tb").iterdir()) and "all-seeds" in runs
+        for run in runs:
+            assert _tb_scalars(a / "tb" / run) == _tb_scalars(b / "tb" / run), run
 
 
 def test_run_killed_after_a_checkpoint_resumes_to_the_same_files(tmp_path, monkeypatch, trainer_config):
