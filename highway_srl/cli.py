@@ -146,19 +146,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def set_threads(requested: int | None) -> int:
-    """One intra-op thread per process unless asked otherwise (--threads, then OMP_NUM_THREADS). Why: the CPU
-    step is ~1,500 small operations, each an OpenMP region that waits for its slowest thread; with a second
-    thread and another process busy on the cores, bench sim at 4,096 envs fell 20-35x (docs/benchmarks.md),
-    while one thread loses only ~1.1x on an idle machine."""
+    """This process's torch threads by the one rule (experiments.runs.default_threads); exported as
+    OMP_NUM_THREADS so that worker processes (reproduce --jobs, bench --processes) take the same count."""
     import os
 
     import torch
 
-    threads = requested
-    if threads is None:
-        env = os.environ.get("OMP_NUM_THREADS", "")
-        threads = int(env) if env.isdigit() and int(env) > 0 else 1
+    from highway_srl.experiments.runs import default_threads
+
+    threads = default_threads(requested)
     torch.set_num_threads(threads)
+    os.environ["OMP_NUM_THREADS"] = str(threads)
     return threads
 
 

@@ -55,6 +55,18 @@ def provenance() -> dict:
     return {"version": __version__, "commit": commit()}
 
 
+def default_threads(requested: int | None = None) -> int:
+    """Intra-op threads for a process that steps the simulator or trains: `requested` (--threads), else
+    OMP_NUM_THREADS, else one. Why one: the CPU step is ~1,500 small operations, each an OpenMP region that
+    waits for its slowest thread; with a second thread and another process busy on the cores, bench sim at
+    4,096 envs fell 20-35x (docs/benchmarks.md), while one thread loses only ~1.1x on an idle machine.
+    Parallelism comes from processes (--jobs, --processes), each with this many threads."""
+    if requested is not None:
+        return requested
+    env = os.environ.get("OMP_NUM_THREADS", "")
+    return int(env) if env.isdigit() and int(env) > 0 else 1
+
+
 def write_json(path: Path, data, replace: bool = True) -> None:
     """Write JSON atomically (temp file in the same folder, fsync, rename; replace=False: never over a file
     that exists, checkpoint.publish)."""

@@ -27,7 +27,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Callable
 
-from highway_srl.experiments.runs import lock_run, open_state, provenance, read_json, write_json
+from highway_srl.experiments.runs import default_threads, lock_run, open_state, provenance, read_json, write_json
 from highway_srl.study.jobs import Budget, Job, get_budget, job_availability, study_jobs
 from highway_srl.study.tables import job_fraction
 
@@ -143,15 +143,6 @@ Work = Callable[..., dict]  # run_job's signature; tests pass cheaper stand-ins
 
 
 # ---------------------------------------------------------------------------------------------- executors
-def worker_threads(workers: int) -> int:
-    """Torch threads per job: OMP_NUM_THREADS if set (the user shares the machine with other work), else the
-    cores divided among the workers."""
-    env = os.environ.get("OMP_NUM_THREADS", "")
-    if env.isdigit() and int(env) > 0:
-        return int(env)
-    return max(1, (os.cpu_count() or 1) // max(1, workers))
-
-
 def gpu_count() -> int:
     import torch
 
@@ -187,7 +178,7 @@ def exit_with_parent(parent_pid: int, poll_s: float = 1.0) -> None:
 def run_local(jobs: list[Job], root: Path, device: str, workers: int, on_result, work: Work = run_job) -> None:
     """`workers` worker processes (spawned, reused across jobs); one job runs inline when workers == 1.
     Jobs go to devices by place_jobs."""
-    threads = worker_threads(workers)
+    threads = default_threads()  # per worker: one unless OMP_NUM_THREADS (or the CLI's --threads) says more
     devices = place_jobs(device, len(jobs), gpu_count() if device == "cuda" else 0)
     if workers <= 1 or len(jobs) <= 1:
         for job, dev in zip(jobs, devices):

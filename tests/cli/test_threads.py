@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import pytest
 import torch
@@ -25,6 +26,8 @@ def test_one_thread_unless_asked(monkeypatch, restore_threads):
     assert set_threads(1) == 1 and torch.get_num_threads() == 1  # --threads wins over the environment
     monkeypatch.setenv("OMP_NUM_THREADS", "")  # unset-like values fall back to one
     assert set_threads(None) == 1
+    set_threads(3)
+    assert os.environ["OMP_NUM_THREADS"] == "3"  # what the worker processes of reproduce / bench take
 
 
 def test_every_command_takes_threads(capsys, restore_threads):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from pathlib import Path
 
 import pytest
 import study_fakes as fakes
@@ -213,14 +214,24 @@ def test_a_part_of_the_study_runs_with_other_seeds_and_keeps_them(tmp_path, caps
         assert rc == 2 and len(err) == 1 and words in err[0], (argv, err)
 
 
-def test_workers_take_omp_num_threads_when_it_is_set(monkeypatch):
-    from highway_srl.study.runner import worker_threads
+def test_workers_take_one_thread_unless_omp_num_threads_says_more(monkeypatch):
+    """One rule with the CLI (experiments.runs.default_threads): the cores are not divided among workers,
+    since a second thread per worker collapses when the cores are shared (docs/benchmarks.md)."""
+    from types import SimpleNamespace
 
-    monkeypatch.setenv("OMP_NUM_THREADS", "1")
-    assert worker_threads(1) == 1
-    monkeypatch.delenv("OMP_NUM_THREADS")
+    from highway_srl.study.runner import run_local
+
+    job, seen = SimpleNamespace(to_dict=dict), []
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     monkeypatch.setattr("os.cpu_count", lambda: 8)
-    assert worker_threads(2) == 4 and worker_threads(16) == 1
+    run_local([job], Path("."), "cpu", 1, lambda _, out: seen.append(out), work=_threads_of)
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    run_local([job], Path("."), "cpu", 1, lambda _, out: seen.append(out), work=_threads_of)
+    assert seen == [1, 3]
+
+
+def _threads_of(job_dict, root, device, threads):
+    return threads
 
 
 def test_job_fraction_reads_the_last_logged_step_of_a_running_job(tmp_path):
