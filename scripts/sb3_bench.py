@@ -1,7 +1,7 @@
 """Stable-Baselines3 through highway_srl.sb3 (docs/benchmarks.md): MaskablePPO against unmasked PPO, and
 gymnasium.make_vec's batched env against a SyncVectorEnv of single envs.
 
-    OMP_NUM_THREADS=1 python scripts/sb3_bench.py --steps 20000 --episodes 20
+    OMP_NUM_THREADS=1 python scripts/sb3_bench.py --steps 20000 --episodes 20 [--profile paper]
 
 Needs the [sb3] extra. Prints one JSON line per measurement.
 """
@@ -18,9 +18,9 @@ import highway_srl
 from highway_srl.sb3 import make_vec_env
 
 
-def evaluate(policy, scenario: str, episodes: int, seed: int) -> tuple[float, float, int]:
+def evaluate(policy, scenario: str, episodes: int, seed: int, profile: str) -> tuple[float, float, int]:
     """Mean and std of the return of `episodes` first episodes (one per env), and their collision count."""
-    envs = highway_srl.make(scenario, num_envs=episodes, vector=True)
+    envs = highway_srl.make(scenario, num_envs=episodes, vector=True, profile=profile)
     obs, _ = envs.reset(seed=seed)
     total, final = np.zeros(episodes), np.full(episodes, np.nan)
     collisions = 0
@@ -34,12 +34,12 @@ def evaluate(policy, scenario: str, episodes: int, seed: int) -> tuple[float, fl
     return float(final.mean()), float(final.std()), collisions
 
 
-def train(masked: bool, scenario: str, steps: int, envs: int, seed: int):
+def train(masked: bool, scenario: str, steps: int, envs: int, seed: int, profile: str):
     from sb3_contrib import MaskablePPO
     from stable_baselines3 import PPO
 
     algo = MaskablePPO if masked else PPO
-    model = algo("MlpPolicy", make_vec_env(scenario, num_envs=envs, seed=seed), n_steps=128, batch_size=256,
+    model = algo("MlpPolicy", make_vec_env(scenario, num_envs=envs, seed=seed, profile=profile), n_steps=128, batch_size=256,
                  seed=seed, device="cpu")
     start = time.perf_counter()
     model.learn(steps)
@@ -63,6 +63,8 @@ def main() -> None:
     p.add_argument("--episodes", type=int, default=20)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--vec-envs", type=int, default=64)
+    p.add_argument("--profile", default="safe", choices=("paper", "safe"),
+                   help="rule layer of the training and evaluation envs (safe: the README's MaskablePPO example)")
     args = p.parse_args()
     torch.set_num_threads(1)
 
@@ -75,7 +77,7 @@ def main() -> None:
     rng = np.random.default_rng(args.seed)
     policies = {"random": lambda obs, masks: rng.integers(0, 4, len(obs))}
     for masked in (True, False):
-        model, wall_s = train(masked, args.scenario, args.steps, args.envs, args.seed)
+        model, wall_s = train(masked, args.scenario, args.steps, args.envs, args.seed, args.profile)
         name = "MaskablePPO" if masked else "PPO"
         if masked:
             policies[name] = lambda obs, masks, m=model: m.predict(obs, action_masks=masks, deterministic=True)[0]
@@ -84,9 +86,9 @@ def main() -> None:
         print(json.dumps({"measure": "train", "algo": name, "steps": args.steps, "wall_s": round(wall_s, 1)}),
               flush=True)
     for name, policy in policies.items():
-        mean, std, collisions = evaluate(policy, args.scenario, args.episodes, seed=10_000)
+        mean, std, collisions = evaluate(policy, args.scenario, args.episodes, 10_000, args.profile)
         print(json.dumps({"measure": "return", "policy": name, "episodes": args.episodes, "mean": round(mean, 1),
-                          "std": round(std, 1), "collisions": collisions}), flush=True)
+                          "std": round(std, 1), "collisions": collisions, "profile": args.profile}), flush=True)
 
 
 if __name__ == "__main__":
