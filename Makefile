@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 
 # the tests also exercise the SUMO and highway-env backends and the SB3 adapter (optional extras for users)
 $(VENV)/.extras: $(STAMP)
-	$(BIN)/python -m pip install -q -e ".[test,sumo,highway-env,play,ray,sb3]"
+	$(BIN)/python -m pip install -q -e ".[test,sumo,highway-env,play,ray,sb3,rss]"
 	touch $(VENV)/.extras
 
 setup: $(STAMP)

@@ -64,6 +64,14 @@ def test_backends_bench_prints_our_world_and_lists_every_backend():
     assert "SUMO" in out and "highway-env" in out  # measured, or listed as skipped without its extra
 
 
+def test_rss_oracle_judges_falsify_collisions_twice():
+    pytest.importorskip("ad_rss")
+    out = _run("scripts/rss_oracle.py", "--scenes", "two-lane", "--levels", "F", "--episodes", "16").stdout
+    result = json.loads(out[out.index("{"):])
+    assert result["collisions"] == (result["agree"] + result["ours_avoidable_rss_not"] + result["rss_ego_ours_not"]
+                                    + result["not_judged"])
+
+
 @pytest.mark.parametrize("script", ["gap_rule_table.py", "action_census.py", "sb3_bench.py"])
 def test_scripts_too_long_for_the_suite_show_their_help(script):
     if script == "sb3_bench.py":

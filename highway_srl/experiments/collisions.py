@@ -127,7 +127,7 @@ class DecisionTrace:
     (rules.avoidable): it keeps the world's positions and speeds of the last `window` steps, classifies each
     new collision (classify: kind, who was changing lanes, the vehicle hit) and gives every decision row the
     hit vehicle's offsets (dx, dy) and speed (v_sv) in the state the decision was taken in; the record gets
-    kind, ego_avoidable (bool) and reason. verdicts() counts them."""
+    kind, ego_changing, sv_changing, ego_avoidable (bool) and reason. verdicts() counts them."""
 
     def __init__(self, method, window: int = 8) -> None:
         if window < 1:
@@ -182,7 +182,8 @@ class DecisionTrace:
             row.update(dx=float(x[env, j] - x[env, 0]), dy=float(y[env, j] - y[env, 0]), v_sv=float(v[env, j]))
         sv_changing = hit["sv"] in ("changing", "forced cut-in")
         avoidable, reason = ego_avoidable(hit["kind"], hit["ego_changing"], sv_changing, rec["decisions"])
-        rec.update(kind=hit["kind"], ego_avoidable=avoidable, reason=reason)
+        rec.update(kind=hit["kind"], ego_changing=hit["ego_changing"], sv_changing=sv_changing,
+                   ego_avoidable=avoidable, reason=reason)
 
     def verdicts(self) -> dict:
         """The judged collisions: ego_avoidable and unavoidable counts and the count of each reason."""

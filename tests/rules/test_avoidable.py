@@ -101,44 +101,13 @@ def test_the_other_cases():
         ego_avoidable("above", False, False, [])
 
 
-def _ad_rss_distance(rss, ph, v_rear: float, v_front: float) -> float:
-    """Intel's ad-rss calculateSafeLongitudinalDistanceSameDirection on the paper's parameters (brakes are
-    negative there; every field its input check reads is set)."""
-    def state(v):
-        s = rss.core.RelativeObjectState()
-        s.object_type = rss.world.ObjectType.OtherVehicle
-        d = s.dynamics
-        d.alpha_lon.accel_max = ph.Acceleration(3.5)
-        d.alpha_lon.brake_max = d.alpha_lon.brake_min = d.alpha_lon.brake_min_correct = ph.Acceleration(-6.0)
-        d.alpha_lat.accel_max, d.alpha_lat.brake_min = ph.Acceleration(0.2), ph.Acceleration(-0.8)
-        d.response_time, d.max_speed_on_acceleration = ph.Duration(0.125), ph.Speed(100.0)
-        u = d.unstructured_settings
-        u.pedestrian_turning_radius, u.vehicle_min_radius = ph.Distance(2.0), ph.Distance(3.5)
-        u.drive_away_max_angle, u.vehicle_yaw_rate_change = ph.Angle(2.4), ph.AngularAcceleration(0.3)
-        u.vehicle_trajectory_calculation_step = ph.Duration(0.2)
-        o = s.unstructured_object_state
-        o.yaw, o.steering_angle, o.yaw_rate = ph.Angle(0.0), ph.Angle(0.0), ph.AngularVelocity(0.0)
-        o.dimension.length, o.dimension.width = ph.Distance(5.0), ph.Distance(2.0)
-        o.center_point.x, o.center_point.y = ph.Distance(0.0), ph.Distance(0.0)
-        o.speed_range.minimum, o.speed_range.maximum = ph.Speed(0.0), ph.Speed(100.0)
-        ss = s.structured_object_state
-        ss.velocity.speed_lon_min = ss.velocity.speed_lon_max = ph.Speed(v)
-        ss.velocity.speed_lat_min = ss.velocity.speed_lat_max = ph.Speed(0.0)
-        ss.distance_to_enter_intersection = ss.distance_to_leave_intersection = ph.Distance(1000.0)
-        ss.is_in_correct_lane = True
-        return s
-
-    out = ph.Distance(0.0)
-    assert rss.structured.calculateSafeLongitudinalDistanceSameDirection(state(v_front), state(v_rear), out)
-    return out.mDistance
-
-
 def test_rss_safe_distance_agrees_with_intel_ad_rss_where_it_is_installed():
-    """An implementation nobody here wrote (pip install ad-rss==5.0.0; not a dependency of the project)."""
+    """An implementation nobody here wrote: ad-rss (the [rss] extra) through rules.rss_oracle."""
     pytest.importorskip("ad_rss")
-    from ad_physics.ad_physics_python311 import physics
-    from ad_rss.ad_rss_python311 import rss
+    from highway_srl.rules.rss_oracle import ad_rss_safe_distance
 
     for v_rear, v_front in ((10.0, 0.0), (10.0, 10.0), (5.0, 5.0), (0.0, 0.0), (5.0, 10.0), (7.3, 2.1)):
-        assert _ad_rss_distance(rss, physics, v_rear, v_front) == pytest.approx(
-            float(rss_safe_distance(v_rear, v_front)), abs=1e-9)
+        assert ad_rss_safe_distance(v_rear, v_front) == pytest.approx(float(rss_safe_distance(v_rear, v_front)),
+                                                                       abs=1e-9)
+    behind = dict(accel_max=0.0, brake_min=6.0, brake_max=6.0)  # the SV behind keeps its speed during δt
+    assert ad_rss_safe_distance(10.0, 0.0, **behind) == pytest.approx(float(rss_safe_distance(10.0, 0.0, **behind)))
