@@ -89,6 +89,20 @@ class UpdateLog:
         return dict(zip(self.FIELDS, means))
 
 
+def td_target(q_next: torch.Tensor, reward: torch.Tensor, done: torch.Tensor, gamma: float,
+              allowed: torch.Tensor, next_action: torch.Tensor | None = None) -> torch.Tensor:
+    """The TD target of every update, (K, N): y = r + gamma (1 - done) Q_target,m(s', a').
+
+    q_next (K, N, out) the target networks' Q-values at s'; reward (K, N); done (K, N) bool (termination only).
+    a' is the max over the member's own actions, allowed (K, out) bool (Algorithm 1), unless next_action
+    (K, N) long names it: a policy's choice, evaluated by the target network (LM-RL's policy evaluation)."""
+    if next_action is None:
+        value = q_next.masked_fill(~allowed.unsqueeze(1), float("-inf")).amax(-1)
+    else:
+        value = q_next.gather(2, next_action.unsqueeze(2)).squeeze(2)
+    return reward + gamma * (~done).to(value.dtype) * value
+
+
 def td_loss_and_grad(net: MLPEnsemble, theta: torch.Tensor, obs: torch.Tensor, action: torch.Tensor,
                      y: torch.Tensor, huber: bool) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The DQN loss of K members and its gradient, written out (no autograd: one graph for torch.compile).
@@ -181,9 +195,9 @@ class DQNLearner:
 
         batch: "obs" (K, N, obs_dim), "action" (K, N) long (inside the member's set),
         "reward" (K, N), "next_obs" (K, N, obs_dim), "done" (K, N) bool (termination only).
-        TD target y = r + gamma (1 - done) max_{a' in A_m} Q_target,m(s', a') (Algorithm 1); a method with
-        targets of its own (LM-RL's policy evaluation) passes them as "y" (K, N) instead of reward, next_obs
-        and done, and the target network's forward pass is skipped.
+        TD target y = r + gamma (1 - done) max_{a' in A_m} Q_target,m(s', a') (Algorithm 1, `td_target`); a
+        method that evaluates a policy of its own (LM-RL) names its next actions as "next_action" (K, N) long,
+        and a' is that action instead of the max.
         loss = mean over N of (y - Q_m(s, a))^2 (the DQN loss of §2.3), or Huber if configured.
         Returns the per-member loss, mean Q(s, a) and mean |TD error| (UpdateStats, (K,) each), detached.
         Nothing here reads a value back to the host, so on a GPU the call queues work without synchronising.
@@ -196,11 +210,7 @@ class DQNLearner:
             # one member's rows are read as views; several are gathered (K, P)
             one = rows is not None and len(rows) == 1
             old_target = self.target.flat[rows[0]:rows[0] + 1] if one else self.target.gather(idx)
-            y = batch.get("y")
-            if y is None:
-                y = self._td_target(idx, old_target, *(batch[k].to(self.device) for k in ("reward", "next_obs", "done")))
-            else:
-                y = y.to(self.device)
+            y = self._td_target(idx, old_target, {k: v.to(self.device) for k, v in batch.items()})
             # the gradient written out (the same as autograd's: tests/agents/test_dqn.py), without the
             # autograd engine's bookkeeping and its final concatenation of the layers' gradients
             theta = self.online.flat[rows[0]:rows[0] + 1] if one else self.online.gather(idx)
@@ -238,9 +248,7 @@ class DQNLearner:
         idx = members.to(self.device)
         obs, action = batch["obs"], batch["action"]
         old_target = self.target.gather(idx)  # (K, P)
-        y = batch.get("y")
-        if y is None:
-            y = self._td_target(idx, old_target, batch["reward"], batch["next_obs"], batch["done"])
+        y = self._td_target(idx, old_target, batch)
         theta = self.online.flat.index_select(0, idx)
         q_sa, per_member, grad = td_loss_and_grad(self.online, theta, obs, action, y, cfg.huber)
         new_theta = self._adam_step(idx, theta, grad, mask)
@@ -251,12 +259,11 @@ class DQNLearner:
         self.target.flat.index_copy_(0, idx, torch.where(sync.unsqueeze(1), new_theta, old_target))
         return UpdateStats(per_member, q_sa.mean(1), (y - q_sa).abs().mean(1))
 
-    def _td_target(self, idx: torch.Tensor, target_rows: torch.Tensor, reward: torch.Tensor,
-                   next_obs: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
-        """y = r + gamma (1 - done) max_{a' in A_m} Q_target,m(s', a') (Algorithm 1), (K, N)."""
-        q_next = ensemble_forward(self.target.unflatten(target_rows), next_obs)
-        q_next = q_next.masked_fill(~self.action_mask[idx].unsqueeze(1), float("-inf")).amax(-1)
-        return reward + self.config.gamma * (~done).to(q_next.dtype) * q_next
+    def _td_target(self, idx: torch.Tensor, target_rows: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """td_target of members idx (K,) on batch, from their target networks' rows target_rows (K, P)."""
+        q_next = ensemble_forward(self.target.unflatten(target_rows), batch["next_obs"])
+        return td_target(q_next, batch["reward"], batch["done"], self.config.gamma, self.action_mask[idx],
+                         batch.get("next_action"))
 
     def _adam_step(self, idx: torch.Tensor, theta: torch.Tensor, grad: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """The static update's Adam with per-member gradient-norm clipping on gathered rows theta, grad (K, P),

@@ -9,7 +9,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from highway_srl.agents.dqn import DQNConfig, DQNLearner, UpdateLog, UpdateStats, td_loss_and_grad
+from highway_srl.agents.dqn import DQNConfig, DQNLearner, UpdateLog, UpdateStats, td_loss_and_grad, td_target
 from highway_srl.agents.ensemble import ensemble_forward
 from highway_srl.agents.gating import EXPERT_ACTION_SETS, expert_action_mask
 from highway_srl.agents.replay import ExpertReplay
@@ -74,6 +74,15 @@ def test_first_update_minimises_the_squared_td_error_of_algorithm_1_and_reports_
     torch.testing.assert_close(stats.q_mean, q_sa.mean(1))
     torch.testing.assert_close(stats.td_error, (y - q_sa).abs().mean(1))
     assert learner.update(idx, batch).loss.sum() < stats.loss.sum()
+
+
+def test_td_target_bootstraps_from_the_best_allowed_action_or_from_the_named_next_action():
+    q_next = torch.tensor([[[1.0, 5.0, 3.0, 9.0], [2.0, 0.0, 4.0, 8.0]]])  # (K=1, N=2, 4)
+    reward, done = torch.tensor([[1.0, 1.0]]), torch.tensor([[False, True]])
+    allowed = torch.tensor([[True, True, True, False]])  # action 3 is outside the member's set
+    assert torch.equal(td_target(q_next, reward, done, 0.5, allowed), torch.tensor([[3.5, 1.0]]))
+    named = td_target(q_next, reward, done, 0.5, allowed, next_action=torch.tensor([[3, 0]]))
+    assert torch.equal(named, torch.tensor([[5.5, 1.0]]))  # a policy's choice, even outside the max
 
 
 def test_update_log_averages_over_member_updates_and_has_nothing_before_the_first():
