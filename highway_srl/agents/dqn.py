@@ -178,6 +178,9 @@ class DQNLearner:
         # costs`, docs/benchmarks.md). Same operations on the same values, so bit for bit the gathered form,
         # which stays for devices where a host read waits for the queue (tests/agents/test_dqn.py compares).
         self.rows_in_place = self.device.type == "cpu"
+        # torch's fused Adam kernel is a private op: where a torch build lacks it, the compact update steps
+        # its rows with the elementwise form through public operations (_adam_rows), to float rounding the same
+        self.fused_adam = getattr(torch, "_fused_adam_", None)
 
     @torch.no_grad()
     def q_values(self, obs: torch.Tensor) -> torch.Tensor:
@@ -217,13 +220,13 @@ class DQNLearner:
             q_sa, per_member, grad = td_loss_and_grad(self.online, theta, obs, action, y, cfg.huber)
             if rows is None:  # gathered rows stepped, then written back
                 m, v = self.exp_avg.index_select(0, idx), self.exp_avg_sq.index_select(0, idx)
-                self._adam_fused(idx, grad, theta.unbind(0), m.unbind(0), v.unbind(0))
+                self._adam_rows(idx, grad, theta.unbind(0), m.unbind(0), v.unbind(0))
                 self.online.flat.index_copy_(0, idx, theta)
                 self.exp_avg.index_copy_(0, idx, m)
                 self.exp_avg_sq.index_copy_(0, idx, v)
             else:  # the members' rows stepped in place
                 flat = self.online.flat.detach()
-                self._adam_fused(idx, grad, [flat[i] for i in rows], [self.exp_avg[i] for i in rows],
+                self._adam_rows(idx, grad, [flat[i] for i in rows], [self.exp_avg[i] for i in rows],
                                  [self.exp_avg_sq[i] for i in rows])
             # Algorithm 1: n_i,j counts the member's updates; when it exceeds n_t the target
             # takes the online weights and the counter restarts.
@@ -267,46 +270,60 @@ class DQNLearner:
 
     def _adam_step(self, idx: torch.Tensor, theta: torch.Tensor, grad: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """The static update's Adam with per-member gradient-norm clipping on gathered rows theta, grad (K, P),
-        written elementwise (a compiler fuses it; the compact update runs torch's fused kernel: _adam_fused).
+        written elementwise (a compiler fuses it; the compact update runs torch's fused kernel: _adam_rows).
 
         Only the members idx where mask (K,) is True step: their moments and step counts are updated and their
         new weights returned (K, P); the others keep their moments, count and weights.
         """
-        cfg = self.config
-        beta1, beta2 = cfg.adam_betas
         grad = self._clipped(grad)
         old_step = self.adam_step[idx]
         step = old_step + 1
         self.adam_step.index_copy_(0, idx, torch.where(mask, step, old_step))
         step_size, bias2_sqrt = self._bias_corrections(step)
-        m = self.exp_avg.index_select(0, idx).lerp_(grad, 1 - beta1)
-        v = self.exp_avg_sq.index_select(0, idx).mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
+        m, v = self._adam_moments(self.exp_avg.index_select(0, idx), self.exp_avg_sq.index_select(0, idx), grad)
         rows = mask.unsqueeze(1)
         self.exp_avg.index_copy_(0, idx, torch.where(rows, m, self.exp_avg.index_select(0, idx)))
         self.exp_avg_sq.index_copy_(0, idx, torch.where(rows, v, self.exp_avg_sq.index_select(0, idx)))
-        # theta - lr / (1 - beta1^t) * m / (sqrt(v / (1 - beta2^t)) + eps), as torch.optim.Adam
-        denom = v.sqrt().div_(bias2_sqrt).add_(cfg.adam_eps).div_(step_size)
+        denom = self._adam_denom(v, step_size, bias2_sqrt)
         return torch.where(rows, theta.addcdiv(m, denom, value=-1.0), theta)
 
-    def _adam_fused(self, idx: torch.Tensor, grad: torch.Tensor, params, exp_avgs, exp_avg_sqs) -> None:
+    def _adam_rows(self, idx: torch.Tensor, grad: torch.Tensor, params, exp_avgs, exp_avg_sqs) -> None:
         """The compact update's Adam with per-member gradient-norm clipping: members idx (K,), their
         gradients grad (K, P), and their weight, first- and second-moment rows (K tensors (P,) each, stepped
         in place). torch's fused Adam kernel (what torch.optim.Adam(fused=True) runs): one pass over a row
         where the elementwise form (_adam_step) takes eight, each through memory, since a member's rows
         (1.2 MB) and the batch's activations do not stay in a 2 MB cache (docs/log/benchmarks-history.md, session 14).
-        Same step as _adam_step to float rounding (tests/agents/test_dqn.py);
-        the clipping's factor enters as the kernel's gradient divisor."""
+        Without the kernel (fused_adam None) the rows step by the elementwise form. Either is the same step
+        as _adam_step to float rounding (tests/agents/test_dqn.py); the clipping's factor enters as the
+        kernel's gradient divisor."""
         cfg = self.config
         beta1, beta2 = cfg.adam_betas
         step = self.adam_step[idx] + 1
         self.adam_step.index_copy_(0, idx, step)
+        if self.fused_adam is None:
+            grad = self._clipped(grad)
+            step_size, bias2_sqrt = self._bias_corrections(step)
+            for k, (theta, m, v) in enumerate(zip(params, exp_avgs, exp_avg_sqs)):
+                self._adam_moments(m, v, grad[k])
+                theta.addcdiv_(m, self._adam_denom(v, step_size[k], bias2_sqrt[k]), value=-1.0)
+            return
         divisor = self._clip_divisor(grad)
         for k in range(len(params)):
             # the public torch.optim.adam.adam(fused=True) would regroup the tensors and add the step count on
             # every call (tens of us); the kernel itself takes the count as given
-            torch._fused_adam_([params[k]], [grad[k]], [exp_avgs[k]], [exp_avg_sqs[k]], [], [step[k]],
-                               lr=cfg.lr, beta1=beta1, beta2=beta2, weight_decay=0.0, eps=cfg.adam_eps,
-                               amsgrad=False, maximize=False, grad_scale=None if divisor is None else divisor[k])
+            self.fused_adam([params[k]], [grad[k]], [exp_avgs[k]], [exp_avg_sqs[k]], [], [step[k]],
+                            lr=cfg.lr, beta1=beta1, beta2=beta2, weight_decay=0.0, eps=cfg.adam_eps,
+                            amsgrad=False, maximize=False, grad_scale=None if divisor is None else divisor[k])
+
+    def _adam_moments(self, m: torch.Tensor, v: torch.Tensor, grad: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Adam's moments m, v moved toward grad, in place (and returned)."""
+        beta1, beta2 = self.config.adam_betas
+        return m.lerp_(grad, 1 - beta1), v.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
+
+    def _adam_denom(self, v: torch.Tensor, step_size: torch.Tensor, bias2_sqrt: torch.Tensor) -> torch.Tensor:
+        """What m is divided by in Adam's step theta - m / denom: (sqrt(v / (1 - beta2^t)) + eps) (1 - beta1^t) / lr,
+        as torch.optim.Adam, with step_size, bias2_sqrt from _bias_corrections."""
+        return v.sqrt().div_(bias2_sqrt).add_(self.config.adam_eps).div_(step_size)
 
     def _clipped(self, grad: torch.Tensor) -> torch.Tensor:
         """grad (K, P) scaled so that each member's norm is at most grad_clip_norm (<= 0: unchanged)."""

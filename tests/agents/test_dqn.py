@@ -166,6 +166,35 @@ def test_in_place_rows_step_bit_for_bit_as_the_gathered_form_with_target_syncs_a
         assert torch.equal(in_place[key], gathered[key]), key
 
 
+@pytest.mark.parametrize("in_place", [True, False], ids=["rows-in-place", "gathered"])
+def test_without_torchs_fused_adam_the_update_steps_as_the_fused_kernel_does(in_place, monkeypatch):
+    """The fused Adam kernel is a private torch op; a learner made where it is missing steps its rows through
+    public operations, to float rounding the same as the kernel, across a target sync and with clipping."""
+    config = dataclasses.replace(SMALL, target_update_interval=2, grad_clip_norm=0.5)
+
+    def make() -> DQNLearner:
+        return DQNLearner(4, expert_action_mask()[[0, 2, 4, 6]], config, obs_dim=5,
+                          generator=torch.Generator().manual_seed(1))
+
+    def run() -> tuple[DQNLearner, dict[str, torch.Tensor]]:
+        gen = torch.Generator().manual_seed(3)
+        learner = make()
+        learner.rows_in_place = in_place
+        for members in ([1], [0, 3], [1, 2], [1], [0, 1, 2, 3]):
+            learner.update(torch.tensor(members), _batch(learner.action_mask[members], 16, 5, gen))
+        return learner, _state(learner)
+
+    fused, want = run()
+    assert fused.fused_adam is not None  # this torch has the kernel: the comparison below means something
+    monkeypatch.delattr(torch, "_fused_adam_")
+    fallback, got = run()
+    assert fallback.fused_adam is None
+    assert got["adam.step"].tolist() == [2, 4, 2, 2]
+    for key in ("online.flat", "target.flat", "adam.exp_avg", "adam.exp_avg_sq"):
+        torch.testing.assert_close(got[key], want[key], rtol=1e-5, atol=1e-6)
+    assert not torch.equal(got["online.flat"], make().online.flat)
+
+
 @pytest.mark.parametrize("huber", [False, True])
 def test_written_out_gradient_is_the_autograd_gradient_of_the_summed_member_losses(huber):
     gen = torch.Generator().manual_seed(3)
