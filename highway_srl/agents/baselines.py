@@ -23,7 +23,6 @@ from __future__ import annotations
 import torch
 
 from highway_srl.agents.dqn import DQNLearner, UpdateStats
-from highway_srl.agents.ensemble import ensemble_forward
 from highway_srl.agents.methods import Decision, Method
 from highway_srl.constants import DEFAULT_PROFILE
 from highway_srl.agents.moe import grouped_q, seed_of_env
@@ -299,7 +298,7 @@ class LMRL(SingleDQN):
         both = torch.cat([members, members + 1]).to(learner.device)
         with torch.no_grad():
             x = torch.cat([batch["next_obs"]] * 2)
-            q_on = ensemble_forward(learner.online.unflatten(learner.online.gather(both)), x)  # (2K, N, 4)
+            q_on = learner.online.forward_rows(learner.online.gather(both), x)  # (2K, N, 4)
             lam = self.lam.to(q_on.device)[members.to(q_on.device) // self.members_per_seed]
             a_next = (q_on[:k] - lam[:, None, None] * q_on[k:]).argmax(-1)  # (K, N)
         targets = {"obs": torch.cat([batch["obs"]] * 2), "action": torch.cat([batch["action"]] * 2),

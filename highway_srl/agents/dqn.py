@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from highway_srl.agents.ensemble import MLPEnsemble, ensemble_forward
+from highway_srl.agents.ensemble import MLPEnsemble, layer_outputs
 from highway_srl.constants import BATCH_SIZE, GAMMA, LEARNING_RATE, OBS_DIM, TOTAL_STEPS
 
 
@@ -109,11 +109,10 @@ def td_loss_and_grad(net: MLPEnsemble, theta: torch.Tensor, obs: torch.Tensor, a
 
     theta (K, P) the members' flat weights; obs (K, N, in); action (K, N) long; y (K, N) the TD targets.
     Returns q_sa (K, N), the per-member mean loss (K,) and d(sum of the per-member losses)/d theta (K, P):
-    the same gradient autograd gives (tests/agents/test_dqn.py), through the layers of ensemble_forward."""
-    w1, b1, w2, b2, w3, b3 = net.unflatten(theta)
-    h1 = torch.relu(torch.baddbmm(b1, obs, w1))
-    h2 = torch.relu(torch.baddbmm(b2, h1, w2))
-    q = torch.baddbmm(b3, h2, w3)
+    the same gradient autograd gives (tests/agents/test_dqn.py), through the layers of net.widths."""
+    params = net.unflatten(theta)
+    outputs = layer_outputs(params, obs)  # [obs, h1, ..., q]
+    q = outputs[-1]
     q_sa = q.gather(2, action.unsqueeze(2)).squeeze(2)
     diff = q_sa - y
     n = diff.shape[1]
@@ -123,14 +122,14 @@ def td_loss_and_grad(net: MLPEnsemble, theta: torch.Tensor, obs: torch.Tensor, a
     else:
         per_member = diff.square().mean(1)
         d_q_sa = diff * (2.0 / n)
-    d_q = torch.zeros_like(q).scatter_(2, action.unsqueeze(2), d_q_sa.unsqueeze(2))  # (K, N, out)
-    # ReLU's backward as autograd computes it (ReluBackward): one pass, where a product with the (h > 0) mask
-    # converts the mask to floats first (about 8x the time on a 256 x 256 batch, scripts/cpu_ops.py costs)
-    d_h2 = torch.ops.aten.threshold_backward(torch.bmm(d_q, w3.transpose(1, 2)), h2, 0.0)
-    d_h1 = torch.ops.aten.threshold_backward(torch.bmm(d_h2, w2.transpose(1, 2)), h1, 0.0)
-    grads = (torch.bmm(obs.transpose(1, 2), d_h1), d_h1.sum(1, keepdim=True),
-             torch.bmm(h1.transpose(1, 2), d_h2), d_h2.sum(1, keepdim=True),
-             torch.bmm(h2.transpose(1, 2), d_q), d_q.sum(1, keepdim=True))
+    d_out = torch.zeros_like(q).scatter_(2, action.unsqueeze(2), d_q_sa.unsqueeze(2))  # (K, N, out)
+    grads = []
+    for i in range(len(params) // 2 - 1, -1, -1):  # layer i maps outputs[i] to outputs[i + 1]
+        grads[:0] = [torch.bmm(outputs[i].transpose(1, 2), d_out), d_out.sum(1, keepdim=True)]
+        if i > 0:
+            # ReLU's backward as autograd computes it (ReluBackward): one pass, where a product with the (h > 0)
+            # mask converts the mask to floats first (about 8x the time on a 256 x 256 batch, scripts/cpu_ops.py)
+            d_out = torch.ops.aten.threshold_backward(torch.bmm(d_out, params[2 * i].transpose(1, 2)), outputs[i], 0.0)
     grad = torch.cat([g.reshape(g.shape[0], -1) for g in grads], 1)
     return q_sa, per_member, grad
 
@@ -264,7 +263,7 @@ class DQNLearner:
 
     def _td_target(self, idx: torch.Tensor, target_rows: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         """td_target of members idx (K,) on batch, from their target networks' rows target_rows (K, P)."""
-        q_next = ensemble_forward(self.target.unflatten(target_rows), batch["next_obs"])
+        q_next = self.target.forward_rows(target_rows, batch["next_obs"])
         return td_target(q_next, batch["reward"], batch["done"], self.config.gamma, self.action_mask[idx],
                          batch.get("next_action"))
 

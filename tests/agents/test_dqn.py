@@ -10,7 +10,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from highway_srl.agents.dqn import DQNConfig, DQNLearner, UpdateLog, UpdateStats, td_loss_and_grad, td_target
-from highway_srl.agents.ensemble import ensemble_forward
+from highway_srl.agents.ensemble import MLPEnsemble, ensemble_forward
 from highway_srl.agents.gating import EXPERT_ACTION_SETS, expert_action_mask
 from highway_srl.agents.replay import ExpertReplay
 
@@ -195,18 +195,19 @@ def test_without_torchs_fused_adam_the_update_steps_as_the_fused_kernel_does(in_
     assert not torch.equal(got["online.flat"], make().online.flat)
 
 
+@pytest.mark.parametrize("hidden", [32, (16, 8, 12)], ids=["paper-shape", "three-hidden-layers"])
 @pytest.mark.parametrize("huber", [False, True])
-def test_written_out_gradient_is_the_autograd_gradient_of_the_summed_member_losses(huber):
+def test_written_out_gradient_is_the_autograd_gradient_of_the_summed_member_losses(huber, hidden):
     gen = torch.Generator().manual_seed(3)
-    learner = DQNLearner(3, expert_action_mask()[[0, 5, 9]], SMALL, obs_dim=5, generator=gen)
-    batch = _batch(learner.action_mask, 16, 5, gen)
+    net = MLPEnsemble(3, 5, 4, hidden, generator=gen)
+    batch = _batch(expert_action_mask()[[0, 5, 9]], 16, 5, gen)
     y = 3.0 * torch.randn(3, 16, generator=gen)  # large errors: Huber's clipped branch runs too
-    theta = learner.online.flat.detach().clone().requires_grad_()
-    q = ensemble_forward(learner.online.unflatten(theta), batch["obs"])
+    theta = net.flat.detach().clone().requires_grad_()
+    q = ensemble_forward(net.unflatten(theta), batch["obs"])
     q_sa = q.gather(2, batch["action"].unsqueeze(2)).squeeze(2)
     loss = F.smooth_l1_loss(q_sa, y, reduction="none").mean(1) if huber else (q_sa - y).square().mean(1)
     (want,) = torch.autograd.grad(loss.sum(), theta)
-    got_q, got_loss, got = td_loss_and_grad(learner.online, theta.detach(), batch["obs"], batch["action"], y, huber)
+    got_q, got_loss, got = td_loss_and_grad(net, theta.detach(), batch["obs"], batch["action"], y, huber)
     torch.testing.assert_close(got_q, q_sa.detach())
     torch.testing.assert_close(got_loss, loss.detach())
     torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-7)
