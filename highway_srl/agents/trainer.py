@@ -18,7 +18,7 @@ import torch
 
 from highway_srl.agents.checkpoint import policy_tensors, split_policy_tensors
 from highway_srl.agents.dqn import DQNConfig, DQNLearner, UpdateLog, UpdateStats
-from highway_srl.agents.methods import Method
+from highway_srl.agents.methods import Method, MoERMSRL
 from highway_srl.agents.registry import make_method
 from highway_srl.agents.replay import ExpertReplay
 from highway_srl.agents.rollout import policy_step
@@ -43,9 +43,7 @@ class TrainConfig:
     profile: str = DEFAULT_PROFILE  # control profile of the method's rule layer: "paper" or "safe" (rules.PROFILES)
     adversary: str = DEFAULT_ADVERSARY  # group-3 cut-ins when adversarial: "paper" (§4.3 as printed) or "mild" (ours)
     # Algorithm 1: gradient steps per environment step, each on the acting member (see Trainer.update_counts)
-    replay_ratio: float | None = 1.0
-    # configs written before replay_ratio: gradient steps per acting member per vector step (replay_ratio None)
-    updates_per_step: int | None = None
+    replay_ratio: float = 1.0
     share_transitions: bool = False  # store each transition in every expert whose set holds the action
     # the static-shape vector step (Trainer.static): None = on CUDA or when compiled, compact on the CPU, where
     # the masked update of every member is 13x slower: `bench train --envs 16 --steps 200`, 1 thread, loaded
@@ -67,19 +65,14 @@ class TrainConfig:
 
     @staticmethod
     def from_dict(d: dict) -> "TrainConfig":
-        """A config from its dict; one written before a setting existed reads as what it ran under (LEGACY)."""
+        """A config from its dict; one written by an older version reads as what it ran under (upgrade_config)."""
         if not isinstance(d, dict):
             raise ValueError(f"config must be an object of settings, got {type(d).__name__}")
         known = set(TrainConfig.__dataclass_fields__)
-        unknown = sorted(set(d) - known)
+        unknown = sorted(set(d) - known - {"updates_per_step"})
         if unknown:
             raise ValueError(f"unknown config keys {unknown}; allowed: {sorted(known)}")
-        d = dict(d)
-        for key, value in LEGACY.items():
-            d.setdefault(key, value)
-        if "replay_ratio" not in d:  # before replay_ratio: updates_per_step (default then 4) per acting member
-            d["replay_ratio"] = None
-            d.setdefault("updates_per_step", 4)
+        d = upgrade_config(d)
         dqn = d.pop("dqn", {})
         if not isinstance(dqn, dict):
             raise ValueError(f"config dqn must be an object of DQN settings, got {dqn!r}")
@@ -97,8 +90,52 @@ class TrainConfig:
 
 # What a config.json written before these keys existed ran under: the rule layer's profile was today's
 # "safe" one and the adversary today's "mild" one, its vector step the compact eager one (replay_ratio: see
-# from_dict).
+# upgrade_config).
 LEGACY = {"profile": "safe", "adversary": "mild", "static": False, "compile": False}
+LEGACY_UPDATES_PER_STEP = 4  # the update rate of a config written before replay_ratio and updates_per_step
+
+
+def upgrade_config(d: dict) -> dict:
+    """The one conversion of a config written by an older version into today's settings (a new dict).
+
+    A setting it lacks reads as what it ran under (LEGACY). Its update rate before replay_ratio,
+    `updates_per_step` (4 where neither key was written), gave that many gradient steps to every member that
+    acted in a vector step; it becomes the replay_ratio it equals (legacy_replay_ratio), or the config is
+    refused in one line where none does. `updates_per_step` null (written beside replay_ratio) is dropped."""
+    d = dict(d)
+    for key, value in LEGACY.items():
+        d.setdefault(key, value)
+    updates = d.pop("updates_per_step", None)
+    if "replay_ratio" not in d:
+        d["replay_ratio"] = None
+        updates = LEGACY_UPDATES_PER_STEP if updates is None else updates
+    if updates is not None:
+        if d["replay_ratio"] is not None:
+            raise ValueError("config sets both replay_ratio and updates_per_step (the older rate): keep replay_ratio")
+        d["replay_ratio"] = legacy_replay_ratio(d.get("method", TrainConfig.method), d.get("options", {}),
+                                                d.get("envs", TrainConfig.envs), updates)
+    return d
+
+
+def legacy_replay_ratio(method: str, options: dict, envs: int, updates_per_step: int) -> float:
+    """The replay_ratio equal to the older rate of updates_per_step gradient steps for every member that acted
+    in a vector step of `envs` envs per seed: updates_per_step / envs, where one network per seed acts in
+    every env (every method but the mixture of experts; exactly, where the ratio times envs is the count).
+    The mixture's experts each took updates_per_step whatever their share of the envs, which no replay_ratio
+    expresses: ValueError, as for a rate that is not a count."""
+    if not isinstance(method, str):
+        raise ValueError(f"config method must be str, got {method!r}")
+    if not (_is_int(updates_per_step) and updates_per_step >= 0 and _is_int(envs) and envs >= 1):
+        raise ValueError(f"config updates_per_step must be a non-negative integer (envs a positive one), got "
+                         f"{updates_per_step!r} (envs {envs!r})")
+    if not isinstance(options, dict):
+        raise ValueError(f"config options must be dict, got {options!r}")
+    ratio = updates_per_step / envs
+    if isinstance(make_method(method, "two-lane", 1, options), MoERMSRL) or ratio * envs != updates_per_step:
+        raise ValueError(f"config updates_per_step={updates_per_step} ({method}, {envs} envs: that many gradient "
+                         "steps for every member that acted in a vector step) has no replay_ratio equal to it; "
+                         "train it again with --replay-ratio")
+    return ratio
 
 
 MAX_SEED = 2**32 - 1  # a seed's env streams (seed x 1,000,003 + env) stay well inside a 64-bit generator seed
@@ -117,12 +154,8 @@ def check_config(cfg: TrainConfig) -> None:
         raise ValueError(f"unknown adversary {cfg.adversary!r}; choose one of {', '.join(ADVERSARIES)}")
     if cfg.compile and cfg.static is False:
         raise ValueError("compile needs the static step (static=False was set)")
-    if (cfg.replay_ratio is None) == (cfg.updates_per_step is None):
-        raise ValueError("set exactly one of replay_ratio (updates per env step) and updates_per_step (legacy)")
-    if cfg.replay_ratio is not None and not (cfg.replay_ratio >= 0 and math.isfinite(cfg.replay_ratio)):
+    if not (cfg.replay_ratio >= 0 and math.isfinite(cfg.replay_ratio)):
         raise ValueError(f"replay_ratio must be a non-negative number, got {cfg.replay_ratio!r}")
-    if cfg.updates_per_step is not None and cfg.updates_per_step < 0:
-        raise ValueError(f"updates_per_step must be non-negative, got {cfg.updates_per_step!r}")
     check_dqn_config(cfg.dqn)
 
 
@@ -137,8 +170,8 @@ def _is_number(value) -> bool:
 def _check_types(cfg: TrainConfig) -> None:
     """Each setting of the type it must have (a config read from JSON can hold anything)."""
     kinds = {"method": str, "scenario": str, "traffic": str, "adversarial": bool, "steps": int, "envs": int,
-             "device": str, "profile": str, "adversary": str, "replay_ratio": (float, None),
-             "updates_per_step": (int, None), "share_transitions": bool, "static": (bool, None),
+             "device": str, "profile": str, "adversary": str, "replay_ratio": float,
+             "share_transitions": bool, "static": (bool, None),
              "compile": (bool, str), "compile_unrolled": bool, "dqn": DQNConfig, "options": dict}
     for name, kind in kinds.items():
         value, kinds_ok = getattr(cfg, name), kind if isinstance(kind, tuple) else (kind,)
@@ -275,8 +308,7 @@ class Trainer:
         # the static form's fixed update: these members, this many rounds (a member acts in at most `envs`
         # envs of a vector step and carries less than one update over, so it is never owed more)
         self.trained = self.method.trained_members(self.device)
-        per_step = cfg.updates_per_step if cfg.replay_ratio is None else math.ceil(cfg.replay_ratio * cfg.envs)
-        self.static_rounds = per_step if self.trained.numel() else 0
+        self.static_rounds = math.ceil(cfg.replay_ratio * cfg.envs) if self.trained.numel() else 0
         self.method.start(self.batch, self.device, self.static)
         self._view = self.layer.observe(self.world)
         compiled = cfg.compile and compile_vector_step(self, cfg.compile, cfg.compile_unrolled)
@@ -390,14 +422,11 @@ class Trainer:
         replay_ratio x (number of envs it acted in) steps: at ratio 1, B per vector step in all, spread over
         the members exactly as B single-env steps of Algorithm 1 would spread them. The fallback (-1) owns
         no transition and takes none (Algorithm 1's j != 0); a member whose buffer holds less than a batch
-        takes none yet and owes nothing. Fractions carry over in update_credit. Legacy configs
-        (updates_per_step): that many steps for every member that acted, whatever the count."""
+        takes none yet and owes nothing. Fractions carry over in update_credit."""
         cfg = self.config
         count = torch.zeros(self.method.num_members, dtype=torch.long, device=self.device)
         count.index_add_(0, acted.clamp(min=0), (acted >= 0).long())
         eligible = self.method.updatable(count, self.replay.size, cfg.dqn.batch_size)
-        if cfg.replay_ratio is None:
-            return torch.where(eligible, cfg.updates_per_step, 0)
         owed = self.update_credit + cfg.replay_ratio * count.double()
         updates = owed.floor()
         self.update_credit = torch.where(eligible, owed - updates, self.update_credit)
@@ -449,8 +478,7 @@ class Trainer:
         state["rng.trainer"] = self.gen.get_state()
         state["counters.vector_steps"] = torch.tensor([self.vector_steps])
         state["counters.usage"] = self.usage
-        if self.config.replay_ratio is not None:  # legacy configs (updates_per_step) carry no credit
-            state["counters.update_credit"] = self.update_credit
+        state["counters.update_credit"] = self.update_credit
         state[UPDATE_LOG_KEYS[0]], state[UPDATE_LOG_KEYS[1]] = self.update_log.sums, self.update_log.count
         return {k: v.detach().contiguous() for k, v in state.items()}
 

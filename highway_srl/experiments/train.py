@@ -460,7 +460,7 @@ def _finish(cfg: TrainConfig, trainer: Trainer, out: Path, wall: float, code: di
     metrics = training_metrics(rows, list(cfg.seeds))
     metrics.update({"method": cfg.method, "scenario": cfg.scenario, "traffic": cfg.traffic,
                     "adversarial": cfg.adversarial, "profile": cfg.profile, "adversary": cfg.adversary,
-                    "replay_ratio": cfg.replay_ratio, "updates_per_step": cfg.updates_per_step, "env_steps_per_seed": trainer.env_steps, "seeds": list(cfg.seeds),
+                    "replay_ratio": cfg.replay_ratio, "env_steps_per_seed": trainer.env_steps, "seeds": list(cfg.seeds),
                     "wall_s": round(wall, 2), "env_steps_per_s": round(trainer.env_steps * len(cfg.seeds) / max(wall, 1e-9), 1),
                     "device": str(trainer.device), "member_usage": _usage(trainer), **code})
     write_json(out / "metrics.json", metrics)
