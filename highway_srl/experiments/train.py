@@ -27,7 +27,8 @@ from highway_srl.agents.checkpoint import (
     MODEL_FILE, CheckpointError, first_non_finite, load_checkpoint, policy_tensors, save_checkpoint, write_atomic,
 )
 from highway_srl.agents.dqn import UpdateLog
-from highway_srl.agents.trainer import OPTIONAL_KEYS, Episode, Trainer, TrainConfig, check_config
+from highway_srl.agents.train_config import TrainConfig, check_config
+from highway_srl.agents.trainer import OPTIONAL_KEYS, Episode, Trainer
 from highway_srl.experiments.bench import check_train_memory
 from highway_srl.experiments.records import check_fields, read_episode_log, scalar_rows
 from highway_srl.experiments.runs import (

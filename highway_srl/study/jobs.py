@@ -168,7 +168,7 @@ class Job:
 
     def train_config(self, device: str = "cpu"):
         from highway_srl.agents.dqn import DQNConfig
-        from highway_srl.agents.trainer import TrainConfig, legacy_replay_ratio
+        from highway_srl.agents.train_config import TrainConfig, legacy_replay_ratio
 
         scene = SCENES[self.scene]
         dqn = DQNConfig(total_steps=self.steps, learning_starts=self.learning_starts, batch_size=self.batch_size)

@@ -80,7 +80,8 @@ def test_saved_model_gives_the_same_greedy_actions(tmp_path, trainer_config):
 KILLED_CHILD = """
 import json, os, signal, sys
 import torch
-from highway_srl.agents.trainer import Trainer, TrainConfig
+from highway_srl.agents.train_config import TrainConfig
+from highway_srl.agents.trainer import Trainer
 from highway_srl.experiments import train as train_mod
 torch.set_num_threads(1)
 cfg, out, kill_at = TrainConfig.from_dict(json.loads(sys.argv[1])), sys.argv[2], int(sys.argv[3])

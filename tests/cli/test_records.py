@@ -14,7 +14,7 @@ from safetensors.torch import load_file, save_file
 from cli_runs import TRAIN, hashes, interrupted_run, one_line_error, run
 
 from highway_srl.agents.dqn import DQNConfig
-from highway_srl.agents.trainer import TrainConfig, check_config
+from highway_srl.agents.train_config import TrainConfig, check_config
 from highway_srl.cli import main
 from highway_srl.experiments import train as train_mod
 

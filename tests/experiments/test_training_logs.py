@@ -9,7 +9,8 @@ import sys
 import pytest
 
 from highway_srl.agents.dqn import DQNConfig
-from highway_srl.agents.trainer import TrainConfig, Trainer
+from highway_srl.agents.train_config import TrainConfig
+from highway_srl.agents.trainer import Trainer
 from highway_srl.experiments import train as train_mod
 
 LEARNING_STARTS = 400
