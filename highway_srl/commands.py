@@ -149,11 +149,10 @@ def train_config(args):
     dqn = DQNConfig(total_steps=args.steps)
     if args.learning_starts is not None:
         dqn.learning_starts = args.learning_starts
-    legacy = args.updates_per_step is not None  # the old per-vector-step count, kept for old scripts
     return TrainConfig(method=args.method, scenario=args.scenario, traffic=args.traffic, adversarial=args.adversarial,
                        steps=args.steps, envs=args.envs, seeds=_seeds(args.seeds), device=args.device,
                        profile=args.profile, adversary=args.adversary,
-                       replay_ratio=None if legacy else args.replay_ratio, updates_per_step=args.updates_per_step,
+                       replay_ratio=args.replay_ratio,
                        share_transitions=args.share_transitions, dqn=dqn, options=options,
                        static=getattr(args, "static", None), compile=getattr(args, "compile", False))
 
@@ -368,12 +367,9 @@ def _add_train(sub, scenario_args) -> None:
                    "SVs turning in)")
     p.add_argument("--adversary", type=adversary_name, default=DEFAULT_ADVERSARY,
                    help="group-3 cut-ins with --adversarial: paper (§4.3 as printed, the default) or mild (ours)")
-    rate = p.add_mutually_exclusive_group()
-    rate.add_argument("--replay-ratio", type=non_negative_float, default=1.0,
-                      help="gradient steps (batch n_b) per environment step, each for the member that acted there "
-                      "(Algorithm 1: 1, the default; 16 envs x 1 = 16 updates per vector step)")
-    rate.add_argument("--updates-per-step", type=positive, default=None,
-                      help="legacy rate: gradient steps per acting member per vector step (before --replay-ratio)")
+    p.add_argument("--replay-ratio", type=non_negative_float, default=1.0,
+                   help="gradient steps (batch n_b) per environment step, each for the member that acted there "
+                   "(Algorithm 1: 1, the default; 16 envs x 1 = 16 updates per vector step)")
     p.add_argument("--learning-starts", type=non_negative, default=None, help="env steps before the first update")
     p.add_argument("--share-transitions", action="store_true",
                    help="store each transition in every expert whose action set holds the executed action")

@@ -23,7 +23,6 @@ from __future__ import annotations
 import torch
 
 from highway_srl.agents.dqn import DQNLearner, UpdateStats
-from highway_srl.agents.ensemble import ensemble_forward
 from highway_srl.agents.methods import Decision, Method
 from highway_srl.constants import DEFAULT_PROFILE
 from highway_srl.agents.moe import grouped_q, seed_of_env
@@ -290,23 +289,21 @@ class LMRL(SingleDQN):
     def update(self, learner: DQNLearner, members: torch.Tensor, batch: dict,
                mask: torch.Tensor | None = None) -> UpdateStats:
         """members (K,): reward networks (even indices) whose buffers gave batch; their cost networks
-        (members + 1) train on the same transitions, toward the policy-evaluation targets computed here
-        (passed to the learner as "y", so that it skips its own max-Q target).
+        (members + 1) train on the same transitions, toward policy-evaluation targets: the learner's
+        td_target at the next actions chosen here (passed as "next_action" instead of its max over actions)
+        with the cost as the cost networks' reward.
         mask (K,) bool: only those reward networks and their cost networks step (the static form).
         Returns the reward networks' stats (the logs' Q values are returns, not costs)."""
         k = members.shape[0]
         both = torch.cat([members, members + 1]).to(learner.device)
-        obs, nxt = batch["obs"], batch["next_obs"]
         with torch.no_grad():
-            x = torch.cat([nxt, nxt])
-            q_on = ensemble_forward(learner.online.unflatten(learner.online.gather(both)), x)  # (2K, N, 4)
-            q_tg = ensemble_forward(learner.target.unflatten(learner.target.gather(both)), x)
+            x = torch.cat([batch["next_obs"]] * 2)
+            q_on = learner.online.forward_rows(learner.online.gather(both), x)  # (2K, N, 4)
             lam = self.lam.to(q_on.device)[members.to(q_on.device) // self.members_per_seed]
-            a_next = (q_on[:k] - lam[:, None, None] * q_on[k:]).argmax(-1, keepdim=True)  # (K, N, 1)
-            bootstrap = learner.config.gamma * (~batch["done"]).to(obs.dtype)
-            y_r = batch["reward"] + bootstrap * q_tg[:k].gather(2, a_next).squeeze(2)
-            y_c = batch["cost"] + bootstrap * q_tg[k:].gather(2, a_next).squeeze(2)
-        targets = {"obs": torch.cat([obs, obs]), "action": torch.cat([batch["action"]] * 2), "y": torch.cat([y_r, y_c])}
+            a_next = (q_on[:k] - lam[:, None, None] * q_on[k:]).argmax(-1)  # (K, N)
+        targets = {"obs": torch.cat([batch["obs"]] * 2), "action": torch.cat([batch["action"]] * 2),
+                   "reward": torch.cat([batch["reward"], batch["cost"]]), "next_obs": x,
+                   "done": torch.cat([batch["done"]] * 2), "next_action": torch.cat([a_next, a_next])}
         if mask is None:
             return learner.update(both, targets).head(k)
         return learner.update_masked(both, targets, torch.cat([mask, mask])).head(k)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from highway_srl.agents.ensemble import MLPEnsemble, ensemble_forward
+from highway_srl.agents.ensemble import MLPEnsemble, layer_outputs
 from highway_srl.constants import BATCH_SIZE, GAMMA, LEARNING_RATE, OBS_DIM, TOTAL_STEPS
 
 
@@ -89,17 +89,30 @@ class UpdateLog:
         return dict(zip(self.FIELDS, means))
 
 
+def td_target(q_next: torch.Tensor, reward: torch.Tensor, done: torch.Tensor, gamma: float,
+              allowed: torch.Tensor, next_action: torch.Tensor | None = None) -> torch.Tensor:
+    """The TD target of every update, (K, N): y = r + gamma (1 - done) Q_target,m(s', a').
+
+    q_next (K, N, out) the target networks' Q-values at s'; reward (K, N); done (K, N) bool (termination only).
+    a' is the max over the member's own actions, allowed (K, out) bool (Algorithm 1), unless next_action
+    (K, N) long names it: a policy's choice, evaluated by the target network (LM-RL's policy evaluation)."""
+    if next_action is None:
+        value = q_next.masked_fill(~allowed.unsqueeze(1), float("-inf")).amax(-1)
+    else:
+        value = q_next.gather(2, next_action.unsqueeze(2)).squeeze(2)
+    return reward + gamma * (~done).to(value.dtype) * value
+
+
 def td_loss_and_grad(net: MLPEnsemble, theta: torch.Tensor, obs: torch.Tensor, action: torch.Tensor,
                      y: torch.Tensor, huber: bool) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The DQN loss of K members and its gradient, written out (no autograd: one graph for torch.compile).
 
     theta (K, P) the members' flat weights; obs (K, N, in); action (K, N) long; y (K, N) the TD targets.
     Returns q_sa (K, N), the per-member mean loss (K,) and d(sum of the per-member losses)/d theta (K, P):
-    the same gradient autograd gives (tests/agents/test_dqn.py), through the layers of ensemble_forward."""
-    w1, b1, w2, b2, w3, b3 = net.unflatten(theta)
-    h1 = torch.relu(torch.baddbmm(b1, obs, w1))
-    h2 = torch.relu(torch.baddbmm(b2, h1, w2))
-    q = torch.baddbmm(b3, h2, w3)
+    the same gradient autograd gives (tests/agents/test_dqn.py), through the layers of net.widths."""
+    params = net.unflatten(theta)
+    outputs = layer_outputs(params, obs)  # [obs, h1, ..., q]
+    q = outputs[-1]
     q_sa = q.gather(2, action.unsqueeze(2)).squeeze(2)
     diff = q_sa - y
     n = diff.shape[1]
@@ -109,14 +122,14 @@ def td_loss_and_grad(net: MLPEnsemble, theta: torch.Tensor, obs: torch.Tensor, a
     else:
         per_member = diff.square().mean(1)
         d_q_sa = diff * (2.0 / n)
-    d_q = torch.zeros_like(q).scatter_(2, action.unsqueeze(2), d_q_sa.unsqueeze(2))  # (K, N, out)
-    # ReLU's backward as autograd computes it (ReluBackward): one pass, where a product with the (h > 0) mask
-    # converts the mask to floats first (about 8x the time on a 256 x 256 batch, scripts/cpu_ops.py costs)
-    d_h2 = torch.ops.aten.threshold_backward(torch.bmm(d_q, w3.transpose(1, 2)), h2, 0.0)
-    d_h1 = torch.ops.aten.threshold_backward(torch.bmm(d_h2, w2.transpose(1, 2)), h1, 0.0)
-    grads = (torch.bmm(obs.transpose(1, 2), d_h1), d_h1.sum(1, keepdim=True),
-             torch.bmm(h1.transpose(1, 2), d_h2), d_h2.sum(1, keepdim=True),
-             torch.bmm(h2.transpose(1, 2), d_q), d_q.sum(1, keepdim=True))
+    d_out = torch.zeros_like(q).scatter_(2, action.unsqueeze(2), d_q_sa.unsqueeze(2))  # (K, N, out)
+    grads = []
+    for i in range(len(params) // 2 - 1, -1, -1):  # layer i maps outputs[i] to outputs[i + 1]
+        grads[:0] = [torch.bmm(outputs[i].transpose(1, 2), d_out), d_out.sum(1, keepdim=True)]
+        if i > 0:
+            # ReLU's backward as autograd computes it (ReluBackward): one pass, where a product with the (h > 0)
+            # mask converts the mask to floats first (about 8x the time on a 256 x 256 batch, scripts/cpu_ops.py)
+            d_out = torch.ops.aten.threshold_backward(torch.bmm(d_out, params[2 * i].transpose(1, 2)), outputs[i], 0.0)
     grad = torch.cat([g.reshape(g.shape[0], -1) for g in grads], 1)
     return q_sa, per_member, grad
 
@@ -164,6 +177,9 @@ class DQNLearner:
         # costs`, docs/benchmarks.md). Same operations on the same values, so bit for bit the gathered form,
         # which stays for devices where a host read waits for the queue (tests/agents/test_dqn.py compares).
         self.rows_in_place = self.device.type == "cpu"
+        # torch's fused Adam kernel is a private op: where a torch build lacks it, the compact update steps
+        # its rows with the elementwise form through public operations (_adam_rows), to float rounding the same
+        self.fused_adam = getattr(torch, "_fused_adam_", None)
 
     @torch.no_grad()
     def q_values(self, obs: torch.Tensor) -> torch.Tensor:
@@ -181,9 +197,9 @@ class DQNLearner:
 
         batch: "obs" (K, N, obs_dim), "action" (K, N) long (inside the member's set),
         "reward" (K, N), "next_obs" (K, N, obs_dim), "done" (K, N) bool (termination only).
-        TD target y = r + gamma (1 - done) max_{a' in A_m} Q_target,m(s', a') (Algorithm 1); a method with
-        targets of its own (LM-RL's policy evaluation) passes them as "y" (K, N) instead of reward, next_obs
-        and done, and the target network's forward pass is skipped.
+        TD target y = r + gamma (1 - done) max_{a' in A_m} Q_target,m(s', a') (Algorithm 1, `td_target`); a
+        method that evaluates a policy of its own (LM-RL) names its next actions as "next_action" (K, N) long,
+        and a' is that action instead of the max.
         loss = mean over N of (y - Q_m(s, a))^2 (the DQN loss of §2.3), or Huber if configured.
         Returns the per-member loss, mean Q(s, a) and mean |TD error| (UpdateStats, (K,) each), detached.
         Nothing here reads a value back to the host, so on a GPU the call queues work without synchronising.
@@ -196,24 +212,20 @@ class DQNLearner:
             # one member's rows are read as views; several are gathered (K, P)
             one = rows is not None and len(rows) == 1
             old_target = self.target.flat[rows[0]:rows[0] + 1] if one else self.target.gather(idx)
-            y = batch.get("y")
-            if y is None:
-                y = self._td_target(idx, old_target, *(batch[k].to(self.device) for k in ("reward", "next_obs", "done")))
-            else:
-                y = y.to(self.device)
+            y = self._td_target(idx, old_target, {k: v.to(self.device) for k, v in batch.items()})
             # the gradient written out (the same as autograd's: tests/agents/test_dqn.py), without the
             # autograd engine's bookkeeping and its final concatenation of the layers' gradients
             theta = self.online.flat[rows[0]:rows[0] + 1] if one else self.online.gather(idx)
             q_sa, per_member, grad = td_loss_and_grad(self.online, theta, obs, action, y, cfg.huber)
             if rows is None:  # gathered rows stepped, then written back
                 m, v = self.exp_avg.index_select(0, idx), self.exp_avg_sq.index_select(0, idx)
-                self._adam_fused(idx, grad, theta.unbind(0), m.unbind(0), v.unbind(0))
+                self._adam_rows(idx, grad, theta.unbind(0), m.unbind(0), v.unbind(0))
                 self.online.flat.index_copy_(0, idx, theta)
                 self.exp_avg.index_copy_(0, idx, m)
                 self.exp_avg_sq.index_copy_(0, idx, v)
             else:  # the members' rows stepped in place
                 flat = self.online.flat.detach()
-                self._adam_fused(idx, grad, [flat[i] for i in rows], [self.exp_avg[i] for i in rows],
+                self._adam_rows(idx, grad, [flat[i] for i in rows], [self.exp_avg[i] for i in rows],
                                  [self.exp_avg_sq[i] for i in rows])
             # Algorithm 1: n_i,j counts the member's updates; when it exceeds n_t the target
             # takes the online weights and the counter restarts.
@@ -238,9 +250,7 @@ class DQNLearner:
         idx = members.to(self.device)
         obs, action = batch["obs"], batch["action"]
         old_target = self.target.gather(idx)  # (K, P)
-        y = batch.get("y")
-        if y is None:
-            y = self._td_target(idx, old_target, batch["reward"], batch["next_obs"], batch["done"])
+        y = self._td_target(idx, old_target, batch)
         theta = self.online.flat.index_select(0, idx)
         q_sa, per_member, grad = td_loss_and_grad(self.online, theta, obs, action, y, cfg.huber)
         new_theta = self._adam_step(idx, theta, grad, mask)
@@ -251,55 +261,68 @@ class DQNLearner:
         self.target.flat.index_copy_(0, idx, torch.where(sync.unsqueeze(1), new_theta, old_target))
         return UpdateStats(per_member, q_sa.mean(1), (y - q_sa).abs().mean(1))
 
-    def _td_target(self, idx: torch.Tensor, target_rows: torch.Tensor, reward: torch.Tensor,
-                   next_obs: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
-        """y = r + gamma (1 - done) max_{a' in A_m} Q_target,m(s', a') (Algorithm 1), (K, N)."""
-        q_next = ensemble_forward(self.target.unflatten(target_rows), next_obs)
-        q_next = q_next.masked_fill(~self.action_mask[idx].unsqueeze(1), float("-inf")).amax(-1)
-        return reward + self.config.gamma * (~done).to(q_next.dtype) * q_next
+    def _td_target(self, idx: torch.Tensor, target_rows: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """td_target of members idx (K,) on batch, from their target networks' rows target_rows (K, P)."""
+        q_next = self.target.forward_rows(target_rows, batch["next_obs"])
+        return td_target(q_next, batch["reward"], batch["done"], self.config.gamma, self.action_mask[idx],
+                         batch.get("next_action"))
 
     def _adam_step(self, idx: torch.Tensor, theta: torch.Tensor, grad: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """The static update's Adam with per-member gradient-norm clipping on gathered rows theta, grad (K, P),
-        written elementwise (a compiler fuses it; the compact update runs torch's fused kernel: _adam_fused).
+        written elementwise (a compiler fuses it; the compact update runs torch's fused kernel: _adam_rows).
 
         Only the members idx where mask (K,) is True step: their moments and step counts are updated and their
         new weights returned (K, P); the others keep their moments, count and weights.
         """
-        cfg = self.config
-        beta1, beta2 = cfg.adam_betas
         grad = self._clipped(grad)
         old_step = self.adam_step[idx]
         step = old_step + 1
         self.adam_step.index_copy_(0, idx, torch.where(mask, step, old_step))
         step_size, bias2_sqrt = self._bias_corrections(step)
-        m = self.exp_avg.index_select(0, idx).lerp_(grad, 1 - beta1)
-        v = self.exp_avg_sq.index_select(0, idx).mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
+        m, v = self._adam_moments(self.exp_avg.index_select(0, idx), self.exp_avg_sq.index_select(0, idx), grad)
         rows = mask.unsqueeze(1)
         self.exp_avg.index_copy_(0, idx, torch.where(rows, m, self.exp_avg.index_select(0, idx)))
         self.exp_avg_sq.index_copy_(0, idx, torch.where(rows, v, self.exp_avg_sq.index_select(0, idx)))
-        # theta - lr / (1 - beta1^t) * m / (sqrt(v / (1 - beta2^t)) + eps), as torch.optim.Adam
-        denom = v.sqrt().div_(bias2_sqrt).add_(cfg.adam_eps).div_(step_size)
+        denom = self._adam_denom(v, step_size, bias2_sqrt)
         return torch.where(rows, theta.addcdiv(m, denom, value=-1.0), theta)
 
-    def _adam_fused(self, idx: torch.Tensor, grad: torch.Tensor, params, exp_avgs, exp_avg_sqs) -> None:
+    def _adam_rows(self, idx: torch.Tensor, grad: torch.Tensor, params, exp_avgs, exp_avg_sqs) -> None:
         """The compact update's Adam with per-member gradient-norm clipping: members idx (K,), their
         gradients grad (K, P), and their weight, first- and second-moment rows (K tensors (P,) each, stepped
         in place). torch's fused Adam kernel (what torch.optim.Adam(fused=True) runs): one pass over a row
         where the elementwise form (_adam_step) takes eight, each through memory, since a member's rows
         (1.2 MB) and the batch's activations do not stay in a 2 MB cache (docs/log/benchmarks-history.md, session 14).
-        Same step as _adam_step to float rounding (tests/agents/test_dqn.py);
-        the clipping's factor enters as the kernel's gradient divisor."""
+        Without the kernel (fused_adam None) the rows step by the elementwise form. Either is the same step
+        as _adam_step to float rounding (tests/agents/test_dqn.py); the clipping's factor enters as the
+        kernel's gradient divisor."""
         cfg = self.config
         beta1, beta2 = cfg.adam_betas
         step = self.adam_step[idx] + 1
         self.adam_step.index_copy_(0, idx, step)
+        if self.fused_adam is None:
+            grad = self._clipped(grad)
+            step_size, bias2_sqrt = self._bias_corrections(step)
+            for k, (theta, m, v) in enumerate(zip(params, exp_avgs, exp_avg_sqs)):
+                self._adam_moments(m, v, grad[k])
+                theta.addcdiv_(m, self._adam_denom(v, step_size[k], bias2_sqrt[k]), value=-1.0)
+            return
         divisor = self._clip_divisor(grad)
         for k in range(len(params)):
             # the public torch.optim.adam.adam(fused=True) would regroup the tensors and add the step count on
             # every call (tens of us); the kernel itself takes the count as given
-            torch._fused_adam_([params[k]], [grad[k]], [exp_avgs[k]], [exp_avg_sqs[k]], [], [step[k]],
-                               lr=cfg.lr, beta1=beta1, beta2=beta2, weight_decay=0.0, eps=cfg.adam_eps,
-                               amsgrad=False, maximize=False, grad_scale=None if divisor is None else divisor[k])
+            self.fused_adam([params[k]], [grad[k]], [exp_avgs[k]], [exp_avg_sqs[k]], [], [step[k]],
+                            lr=cfg.lr, beta1=beta1, beta2=beta2, weight_decay=0.0, eps=cfg.adam_eps,
+                            amsgrad=False, maximize=False, grad_scale=None if divisor is None else divisor[k])
+
+    def _adam_moments(self, m: torch.Tensor, v: torch.Tensor, grad: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Adam's moments m, v moved toward grad, in place (and returned)."""
+        beta1, beta2 = self.config.adam_betas
+        return m.lerp_(grad, 1 - beta1), v.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
+
+    def _adam_denom(self, v: torch.Tensor, step_size: torch.Tensor, bias2_sqrt: torch.Tensor) -> torch.Tensor:
+        """What m is divided by in Adam's step theta - m / denom: (sqrt(v / (1 - beta2^t)) + eps) (1 - beta1^t) / lr,
+        as torch.optim.Adam, with step_size, bias2_sqrt from _bias_corrections."""
+        return v.sqrt().div_(bias2_sqrt).add_(self.config.adam_eps).div_(step_size)
 
     def _clipped(self, grad: torch.Tensor) -> torch.Tensor:
         """grad (K, P) scaled so that each member's norm is at most grad_clip_norm (<= 0: unchanged)."""

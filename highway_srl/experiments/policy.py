@@ -14,7 +14,7 @@ from highway_srl.agents.dqn import DQNLearner
 from highway_srl.agents.gating import EXPERT_NAMES
 from highway_srl.agents.methods import Method
 from highway_srl.agents.registry import make_method
-from highway_srl.agents.trainer import TrainConfig
+from highway_srl.agents.train_config import TrainConfig
 from highway_srl.constants import OBS_DIM
 from highway_srl.experiments.runs import run_folder, train_config
 

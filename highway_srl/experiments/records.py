@@ -91,7 +91,7 @@ def read_episode_log(path: Path, seeds, max_step: int, drop_damaged: bool = Fals
 def scalar_rows(path: Path, keep_until: int, drop_damaged: bool = False) -> tuple[list[str], list[list[str]], str | None]:
     """(header, rows up to env step keep_until, note) of a run's scalars.csv, every row checked: as many cells
     as the header, env_steps an increasing integer, every other cell empty or a finite number. Damage and
-    the note as in read_episode_log. The columns are train.TrainingLog's: env_steps first, the others read
+    the note as in read_episode_log. The columns are training_log.TrainingLog's: env_steps first, the others read
     by the header's names (a newer version appends columns, such as mean_length, lr and updates; a run
     started by an older one lacks them)."""
     lines = read_text(path).split("\n")

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from highway_srl import __version__
 from highway_srl.agents.checkpoint import write_atomic
-from highway_srl.agents.trainer import TrainConfig
+from highway_srl.agents.train_config import TrainConfig
 
 
 def _git(folder: Path, *args: str) -> str | None:

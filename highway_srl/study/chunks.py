@@ -21,7 +21,7 @@ from pathlib import Path
 from highway_srl.constants import TRAFFIC_LEVELS
 from highway_srl.study import stats as S
 from highway_srl.study.jobs import Job
-from highway_srl.study.tables import Result, Results, job_episodes, load_results
+from highway_srl.study.results import Result, Results, job_episodes, load_results
 
 STUDY_FILE = "study.json"
 SEED_FREE = ("name", "expected_cost", "seeds", "profiles")  # budget settings a chunk may choose for itself

@@ -15,6 +15,8 @@ from pathlib import Path
 
 from highway_srl.constants import TRAFFIC_LEVELS
 from highway_srl.study import tables as T
+from highway_srl.study.results import Results
+from highway_srl.study.table import Table
 from highway_srl.study.jobs import METHOD_LABELS, OURS, SCENES
 
 LEVEL_MARKERS = dict(zip(TRAFFIC_LEVELS, ("o", "s", "^", "D", "v", "P")))
@@ -65,7 +67,7 @@ def cap_rate_axis(ax, top: float) -> None:
         artist.set_clip_on(False)
 
 
-def _scatter(ax, table: T.Table, x: str, y: str, y_scale: float, marker_key: str, markers: dict,
+def _scatter(ax, table: Table, x: str, y: str, y_scale: float, marker_key: str, markers: dict,
              colours: dict) -> tuple[set, set]:
     """One point per row with both values: (row[x], y_scale * row[y]), coloured by method, marked by
     row[marker_key]. Returns the method labels and the marker keys drawn."""
@@ -95,7 +97,7 @@ def _finish(plt, fig, ax, top: float, title: str, plotted: bool, folder: Path, n
     return paths
 
 
-def deployment_pareto(results: T.Results, folder: Path) -> tuple[list[Path], T.Table]:
+def deployment_pareto(results: Results, folder: Path) -> tuple[list[Path], Table]:
     plt = _pyplot()
     table = T.group1_deployment(results)
     table.name, table.title = "deployment_pareto", "Deployment Pareto figure data: speed against C_r, levels A-F"
@@ -111,7 +113,7 @@ def deployment_pareto(results: T.Results, folder: Path) -> tuple[list[Path], T.T
     return paths + table.write(folder), table
 
 
-def training_pareto(results: T.Results, folder: Path) -> tuple[list[Path], T.Table]:
+def training_pareto(results: Results, folder: Path) -> tuple[list[Path], Table]:
     plt = _pyplot()
     table = T.training(results)
     colours = method_colours()
@@ -143,7 +145,7 @@ def _legends(ax, plt, colours, methods, markers: dict[str, str], title: str) -> 
               title_fontsize=8, frameon=False)
 
 
-def training_curves(results: T.Results, folder: Path) -> tuple[list[Path], T.Table]:
+def training_curves(results: Results, folder: Path) -> tuple[list[Path], Table]:
     plt = _pyplot()
     table, series = T.training_curves(results)
     colours = method_colours()
@@ -182,7 +184,7 @@ def training_curves(results: T.Results, folder: Path) -> tuple[list[Path], T.Tab
     return paths + table.write(folder), table
 
 
-def all_figures(results: T.Results, folder: Path) -> tuple[list[Path], dict[str, T.Table]]:
+def all_figures(results: Results, folder: Path) -> tuple[list[Path], dict[str, Table]]:
     """Every figure (PNG, SVG) with its data (CSV, Markdown); the paths and the data tables by name."""
     paths, tables = [], {}
     for make in (deployment_pareto, training_pareto, training_curves):

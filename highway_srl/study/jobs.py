@@ -168,16 +168,18 @@ class Job:
 
     def train_config(self, device: str = "cpu"):
         from highway_srl.agents.dqn import DQNConfig
-        from highway_srl.agents.trainer import TrainConfig
+        from highway_srl.agents.train_config import TrainConfig, legacy_replay_ratio
 
         scene = SCENES[self.scene]
         dqn = DQNConfig(total_steps=self.steps, learning_starts=self.learning_starts, batch_size=self.batch_size)
+        options = {o: True for o in self.options}
+        replay_ratio = self.replay_ratio
+        if replay_ratio is None:  # a study written before replay_ratio: its rate, as a config of then reads
+            replay_ratio = legacy_replay_ratio(self.method, options, self.envs, self.legacy_updates_per_step)
         return TrainConfig(method=self.method, scenario=scene.scenario, traffic=TRAIN_TRAFFIC,
                            adversarial=scene.adversarial, steps=self.steps, envs=self.envs, seeds=self.seeds,
-                           device=device, replay_ratio=self.replay_ratio,
-                           updates_per_step=self.legacy_updates_per_step, profile=self.profile,
-                           adversary=self.adversary, dqn=dqn,
-                           options={o: True for o in self.options})
+                           device=device, replay_ratio=replay_ratio, profile=self.profile,
+                           adversary=self.adversary, dqn=dqn, options=options)
 
     def cost(self) -> int:
         """Relative cost for scheduling (vector steps of training and evaluation)."""

@@ -17,6 +17,8 @@ from highway_srl.study import chunks
 from highway_srl.study import figures as F
 from highway_srl.study import seed_tables as ST
 from highway_srl.study import tables as T
+from highway_srl.study.results import Results, job_fraction
+from highway_srl.study.table import Table, write_text
 from highway_srl.study.side_by_side import side_by_side
 from highway_srl.experiments.runs import provenance
 from highway_srl.study.jobs import BUDGETS, Job
@@ -47,7 +49,7 @@ def _duration(seconds: float | None) -> str:
     return f"{seconds / 3600:.1f} h"
 
 
-def _setting(results: T.Results) -> list[str]:
+def _setting(results: Results) -> list[str]:
     state = results.state
     b = state.get("budget_config", {})
     inv = state.get("invocations", [])
@@ -101,12 +103,12 @@ def _version(state: dict) -> str:
             + f"; study started {state.get('created')}.")
 
 
-def table_blocks(t: T.Table, folder: str) -> list[tuple]:
+def table_blocks(t: Table, folder: str) -> list[tuple]:
     """A table's heading, the table and where its files are."""
     return [("h2", t.title), ("table", t), ("p", f"Files: `{folder}/{t.name}.csv`, `{folder}/{t.name}.md`.")]
 
 
-def build_blocks(root: Path, results: T.Results, tables: dict[str, T.Table], figures: list[Path]) -> list[tuple]:
+def build_blocks(root: Path, results: Results, tables: dict[str, Table], figures: list[Path]) -> list[tuple]:
     blocks: list[tuple] = [("h1", "MoE-RM-SRL study: our runs beside the paper")]
     blocks.append(("ul", _setting(results)))
     if results.budget != "paper":
@@ -152,7 +154,7 @@ def _training_logged(root: Path, entry: dict) -> str:
     """How far a job not done has trained, from its scalars.csv (a study running or stopped), else ''."""
     job = Job.from_dict(entry["job"])
     chunk = entry.get("chunk") or (entry.get("chunks") or ["."])[0]  # a chunked study: the job's own chunk
-    frac = T.job_fraction(root / chunk, job)
+    frac = job_fraction(root / chunk, job)
     return f" ({frac * job.steps:,.0f} of {job.steps:,} env steps logged)" if 0 < frac < 1 else ""
 
 
@@ -213,7 +215,7 @@ def render_html(blocks: list[tuple], root: Path) -> str:
             f"<style>{style}</style></head><body>" + "\n".join(body) + "</body></html>\n")
 
 
-def seed_tables(results: T.Results) -> dict[str, T.Table]:
+def seed_tables(results: Results) -> dict[str, Table]:
     """The seed-as-unit tables of the reproduction, then of each other profile as NAME_PROFILE."""
     out = {"seed_intervals": ST.intervals_table(results), "seeds": ST.seeds_table(results)}
     for other in results.beyond():
@@ -237,6 +239,6 @@ def write_report(root: str | Path) -> Path:
     tables.update(figure_tables)
     blocks = build_blocks(root, results, tables, figures)
     md = root / "report.md"
-    T.write_text(md, render_markdown(blocks))
-    T.write_text(root / "report.html", render_html(blocks, root))
+    write_text(md, render_markdown(blocks))
+    write_text(root / "report.html", render_html(blocks, root))
     return md

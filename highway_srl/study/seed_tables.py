@@ -12,7 +12,8 @@ from __future__ import annotations
 
 from highway_srl.study import stats as S
 from highway_srl.study.jobs import METHOD_LABELS, SCENES, TRAIN_TRAFFIC
-from highway_srl.study.tables import Column, Result, Results, Table, fmt
+from highway_srl.study.results import Result, Results
+from highway_srl.study.table import Column, Table, fmt
 
 TRAIN_KEYS = {"T_c": "T_c", "rise_time": "rise_time_steps", "T_r": "T_r", "T_r_rm": "T_r_rm"}
 DEPLOY_KEYS = ("C_r", "avg_speed", "R_r", "R_s")

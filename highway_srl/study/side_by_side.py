@@ -13,7 +13,9 @@ from __future__ import annotations
 from highway_srl.study import paper_numbers as paper
 from highway_srl.study.jobs import (ABLATION_SCENE, ABLATIONS, METHOD_LABELS, MULTILANE_SCENES, OURS, SCENES,
                                     TABLE5_METHODS, TABLE5_SCENES, TRAIN_TRAFFIC)
-from highway_srl.study.tables import METRIC_LABELS, T5_KINDS, Column, Result, Results, Table, fmt
+from highway_srl.study.results import Result, Results
+from highway_srl.study.table import Column, Table, fmt
+from highway_srl.study.tables import METRIC_LABELS, T5_KINDS
 
 TRAINING_METRICS = ("T_c", "T_r", "T_r_rm")
 KINDS = {**T5_KINDS, "avg_speed": "f2", "collision_rate": "pct"}

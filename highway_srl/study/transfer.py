@@ -24,7 +24,7 @@ from typing import Callable
 from highway_srl.constants import TRAFFIC_LEVELS
 from highway_srl.experiments.runs import open_state, provenance, read_json, write_json
 from highway_srl.study.jobs import METHOD_LABELS, SCENES, Job
-from highway_srl.study.tables import Column, Table
+from highway_srl.study.table import Column, Table
 
 SIMULATORS = ("ours", "sumo", "highway-env")
 SIMULATOR_LABELS = {"ours": "ours", "sumo": "SUMO", "highway-env": "highway-env"}
@@ -124,7 +124,8 @@ def run_transfer(out: str | Path, settings: TransferSettings = TransferSettings(
     """Run every pending job, then write the table; returns the Markdown table's path."""
     from highway_srl.backends import missing_modules
     from highway_srl.experiments.bench import check_sim_memory
-    from highway_srl.study.runner import machine, now, run_local
+    from highway_srl.study.executors import now, run_local
+    from highway_srl.study.runner import machine
 
     settings.check()
     for sim in simulators:

@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 
 from highway_srl.study import seed_tables as ST
 from highway_srl.study import stats as S
-from highway_srl.study import tables as T
+from highway_srl.study.results import Results
+from highway_srl.study.table import fmt
 from highway_srl.study.paper_numbers import TABLE5
 from highway_srl.study.jobs import (ABLATION_SCENE, ABLATIONS, GROUP1_METHODS, METHOD_LABELS, OURS, SCENES,
                                     TABLE5_METHODS, TABLE5_SCENES)
@@ -61,24 +62,24 @@ def dominates(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
     return all(x >= y for x, y in zip(a, b)) and any(x > y for x, y in zip(a, b))
 
 
-def basis(results: T.Results, seeds: int | str, episodes: int, what: str = "episodes") -> str:
+def basis(results: Results, seeds: int | str, episodes: int, what: str = "episodes") -> str:
     """What a verdict line rests on: '(3 seeds, 300 episodes; budget paper, paper profile)'."""
     return (f"({seeds} seed{'' if seeds == 1 else 's'}, {episodes:,} {what}; budget {results.budget}, "
             f"{results.profile or 'paper'} profile)")
 
 
 def _collapsed_text(fallen: dict, name: str, kind: str) -> str:
-    return ", ".join(f"seed {s} collapsed ({name} {T.fmt(kind, v)})" for s, v in sorted(fallen.items()))
+    return ", ".join(f"seed {s} collapsed ({name} {fmt(kind, v)})" for s, v in sorted(fallen.items()))
 
 
-def claims(results: T.Results) -> list[Claim]:
+def claims(results: Results) -> list[Claim]:
     """The paper's claims, each checked on the study's results."""
     return [_collision_free_claim(results), _pareto_claim(results),
             _success_claim(results, "merge_success", ("merge", "adv-merge"), "merging"),
             _success_claim(results, "exit_success", ("exit", "adv-exit"), "exiting"), _ablation_claim(results)]
 
 
-def _ours_by_scene(results: T.Results, claim: Claim, scenes, key: str, missing: str):
+def _ours_by_scene(results: Results, claim: Claim, scenes, key: str, missing: str):
     """(scene, label, seed summary) of MoE-RM-SRL in each scene that has `key`; the others get a check
     without a verdict that says `missing`."""
     for scene in scenes:
@@ -89,7 +90,7 @@ def _ours_by_scene(results: T.Results, claim: Claim, scenes, key: str, missing: 
             yield scene, SCENES[scene].label, s
 
 
-def _collision_free_claim(results: T.Results) -> Claim:
+def _collision_free_claim(results: Results) -> Claim:
     """Table 5's collision-free training of MoE-RM-SRL, per scene."""
     c = Claim("collision_free_training", "MoE-RM-SRL trains without collisions (Table 5: T_c = 1.000 in all six "
               "scenes).", f"The mean over seeds of MoE-RM-SRL's T_c is at least {COLLISION_FREE} (prints as 1.000) "
@@ -98,7 +99,7 @@ def _collision_free_claim(results: T.Results) -> Claim:
         seeds = ST.train_seeds(results.get(OURS, scene))
         low = min(seeds.items(), key=lambda kv: (kv[1]["T_c"] if kv[1]["T_c"] is not None else 2.0, kv[0]))
         detail = (f"T_c {ST.interval_text('f4', s['T_c'])} over seeds, lowest seed {low[0]} at "
-                  f"{T.fmt('f4', low[1]['T_c'])}; {sum(v['collisions'] or 0 for v in seeds.values())} collision(s)")
+                  f"{fmt('f4', low[1]['T_c'])}; {sum(v['collisions'] or 0 for v in seeds.values())} collision(s)")
         if "T_c" in s["collapsed"]:
             detail += "; " + _collapsed_text(s["collapsed"]["T_c"], "T_c", "f3")
         c.checks.append(Check(label, s["T_c"].mean >= COLLISION_FREE,
@@ -111,7 +112,7 @@ def _negated(iv: S.Interval) -> S.Interval:
     return S.Interval(-iv.mean, None if iv.high is None else -iv.high, None if iv.low is None else -iv.low, iv.n)
 
 
-def _pareto_check(what: str, points: dict, describe, results: T.Results) -> Check:
+def _pareto_check(what: str, points: dict, describe, results: Results) -> Check:
     """points: method label -> (axes as Intervals, collapsed seeds text, seeds, episodes) or None."""
     ours = points.get(METHOD_LABELS[OURS])
     others = {m: p for m, p in points.items() if m != METHOD_LABELS[OURS] and p is not None}
@@ -150,7 +151,7 @@ def _train_point(res):
     return (s["T_c"], _negated(s["rise_time"])), fallen, s["seeds"], s["episodes"]
 
 
-def _pareto_claim(results: T.Results) -> Claim:
+def _pareto_claim(results: Results) -> Claim:
     """MoE-RM-SRL on the Pareto front: deployment per Group 1 level, training per Table 5 scene."""
     c = Claim("pareto", "MoE-RM-SRL dominates the Pareto front: in deployment it occupies the upper right (speed, "
               "C_r) at every traffic level, and in training it combines collision-free training with a fast reward "
@@ -170,7 +171,7 @@ def _pareto_claim(results: T.Results) -> Claim:
     return c
 
 
-def _success_claim(results: T.Results, key: str, scenes: tuple[str, str], doing: str) -> Claim:
+def _success_claim(results: Results, key: str, scenes: tuple[str, str], doing: str) -> Claim:
     """MoE-RM-SRL's success rate in a scene and its adversarial twin, against every baseline."""
     paper = " and ".join(f"{SCENES[s].label} {TABLE5[s]['R_s'][OURS]:.1%}" for s in scenes)
     c = Claim(key, f"MoE-RM-SRL keeps high success on {doing} (Table 5: R_s {paper}).",
@@ -184,7 +185,7 @@ def _success_claim(results: T.Results, key: str, scenes: tuple[str, str], doing:
                   f"{ST.interval_text('pct', s['R_s_pooled'])} (paper {TABLE5[scene]['R_s'][OURS]:.1%})")
         if "R_s" in s["collapsed"]:
             detail += "; " + _collapsed_text(s["collapsed"]["R_s"], "R_s", "pct")
-        detail += ("; baselines " + ", ".join(f"{m} {T.fmt('pct', iv.mean)}" for m, iv in base.items())
+        detail += ("; baselines " + ", ".join(f"{m} {fmt('pct', iv.mean)}" for m, iv in base.items())
                    if base else "; no baseline result to compare with")
         if better:
             detail += f"; above its interval: {', '.join(better)}"
@@ -193,7 +194,7 @@ def _success_claim(results: T.Results, key: str, scenes: tuple[str, str], doing:
     return c
 
 
-def _ablation_claim(results: T.Results) -> Claim:
+def _ablation_claim(results: Results) -> Claim:
     """Table 6: the full model better than each ablated variant on adversarial two-lane, significantly."""
     c = Claim("ablation", "Each ablated part matters (Table 6: without mapping, MoE or RM, deployment C_r and R_r "
               "drop on adversarial two-lane).", f"The full MoE-RM-SRL is better than the variant in C_r or R_r with "
@@ -219,7 +220,7 @@ def p_text(p: float) -> str:
     return f"p < {2 / S.BOOTSTRAP_DRAWS:.4f}" if p <= 1 / S.BOOTSTRAP_DRAWS else f"p {p:.4f}"
 
 
-def ablation_check(label: str, full: dict, variant: dict, results: T.Results) -> Check:
+def ablation_check(label: str, full: dict, variant: dict, results: Results) -> Check:
     """full, variant: deploy_seeds of the two jobs ({seed: {episodes, C_r, R_r, ...}})."""
     tests, better, worse = [], False, False
     if len(full) >= 2 and len(variant) >= 2:

@@ -17,7 +17,7 @@ def _one_thread(one_thread):
 def short_config():
     """A method's config: 1600 steps of two-lane level A, 8 envs (trainer_config: 2400 for MoE-RM-SRL)."""
     from highway_srl.agents.dqn import DQNConfig
-    from highway_srl.agents.trainer import TrainConfig
+    from highway_srl.agents.train_config import TrainConfig
 
     def make(method: str, steps: int = 1600, **kw) -> TrainConfig:
         dqn = DQNConfig(total_steps=steps, learning_starts=300, target_update_interval=200, exploration_fraction=0.3,
@@ -32,7 +32,7 @@ def short_config():
 def trainer_config():
     """MoE-RM-SRL by default: 2400 steps of two-lane level A, 8 envs: enough for the DQN to learn."""
     from highway_srl.agents.dqn import DQNConfig
-    from highway_srl.agents.trainer import TrainConfig
+    from highway_srl.agents.train_config import TrainConfig
 
     def make(steps: int = 2400, **kw) -> TrainConfig:
         dqn = DQNConfig(total_steps=steps, learning_starts=300, target_update_interval=200, exploration_fraction=0.3)

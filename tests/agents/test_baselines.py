@@ -187,7 +187,7 @@ def test_raw_view_respects_the_roads_barriers():
 
 def test_every_method_drives_every_scenario_through_the_trainer_and_resumes():
     from highway_srl.agents.dqn import DQNConfig
-    from highway_srl.agents.trainer import TrainConfig
+    from highway_srl.agents.train_config import TrainConfig
 
     for scenario in ("multi-lane", "merge", "exit"):
         for name, options in (("rl", {}), ("sr-rl", {}), ("lm-rl", {}), ("et-rl", {}), ("rule-based", {}),

@@ -9,8 +9,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from highway_srl.agents.dqn import DQNConfig, DQNLearner, UpdateLog, UpdateStats, td_loss_and_grad
-from highway_srl.agents.ensemble import ensemble_forward
+from highway_srl.agents.dqn import DQNConfig, DQNLearner, UpdateLog, UpdateStats, td_loss_and_grad, td_target
+from highway_srl.agents.ensemble import MLPEnsemble, ensemble_forward
 from highway_srl.agents.gating import EXPERT_ACTION_SETS, expert_action_mask
 from highway_srl.agents.replay import ExpertReplay
 
@@ -74,6 +74,15 @@ def test_first_update_minimises_the_squared_td_error_of_algorithm_1_and_reports_
     torch.testing.assert_close(stats.q_mean, q_sa.mean(1))
     torch.testing.assert_close(stats.td_error, (y - q_sa).abs().mean(1))
     assert learner.update(idx, batch).loss.sum() < stats.loss.sum()
+
+
+def test_td_target_bootstraps_from_the_best_allowed_action_or_from_the_named_next_action():
+    q_next = torch.tensor([[[1.0, 5.0, 3.0, 9.0], [2.0, 0.0, 4.0, 8.0]]])  # (K=1, N=2, 4)
+    reward, done = torch.tensor([[1.0, 1.0]]), torch.tensor([[False, True]])
+    allowed = torch.tensor([[True, True, True, False]])  # action 3 is outside the member's set
+    assert torch.equal(td_target(q_next, reward, done, 0.5, allowed), torch.tensor([[3.5, 1.0]]))
+    named = td_target(q_next, reward, done, 0.5, allowed, next_action=torch.tensor([[3, 0]]))
+    assert torch.equal(named, torch.tensor([[5.5, 1.0]]))  # a policy's choice, even outside the max
 
 
 def test_update_log_averages_over_member_updates_and_has_nothing_before_the_first():
@@ -157,18 +166,48 @@ def test_in_place_rows_step_bit_for_bit_as_the_gathered_form_with_target_syncs_a
         assert torch.equal(in_place[key], gathered[key]), key
 
 
+@pytest.mark.parametrize("in_place", [True, False], ids=["rows-in-place", "gathered"])
+def test_without_torchs_fused_adam_the_update_steps_as_the_fused_kernel_does(in_place, monkeypatch):
+    """The fused Adam kernel is a private torch op; a learner made where it is missing steps its rows through
+    public operations, to float rounding the same as the kernel, across a target sync and with clipping."""
+    config = dataclasses.replace(SMALL, target_update_interval=2, grad_clip_norm=0.5)
+
+    def make() -> DQNLearner:
+        return DQNLearner(4, expert_action_mask()[[0, 2, 4, 6]], config, obs_dim=5,
+                          generator=torch.Generator().manual_seed(1))
+
+    def run() -> tuple[DQNLearner, dict[str, torch.Tensor]]:
+        gen = torch.Generator().manual_seed(3)
+        learner = make()
+        learner.rows_in_place = in_place
+        for members in ([1], [0, 3], [1, 2], [1], [0, 1, 2, 3]):
+            learner.update(torch.tensor(members), _batch(learner.action_mask[members], 16, 5, gen))
+        return learner, _state(learner)
+
+    fused, want = run()
+    assert fused.fused_adam is not None  # this torch has the kernel: the comparison below means something
+    monkeypatch.delattr(torch, "_fused_adam_")
+    fallback, got = run()
+    assert fallback.fused_adam is None
+    assert got["adam.step"].tolist() == [2, 4, 2, 2]
+    for key in ("online.flat", "target.flat", "adam.exp_avg", "adam.exp_avg_sq"):
+        torch.testing.assert_close(got[key], want[key], rtol=1e-5, atol=1e-6)
+    assert not torch.equal(got["online.flat"], make().online.flat)
+
+
+@pytest.mark.parametrize("hidden", [32, (16, 8, 12)], ids=["paper-shape", "three-hidden-layers"])
 @pytest.mark.parametrize("huber", [False, True])
-def test_written_out_gradient_is_the_autograd_gradient_of_the_summed_member_losses(huber):
+def test_written_out_gradient_is_the_autograd_gradient_of_the_summed_member_losses(huber, hidden):
     gen = torch.Generator().manual_seed(3)
-    learner = DQNLearner(3, expert_action_mask()[[0, 5, 9]], SMALL, obs_dim=5, generator=gen)
-    batch = _batch(learner.action_mask, 16, 5, gen)
+    net = MLPEnsemble(3, 5, 4, hidden, generator=gen)
+    batch = _batch(expert_action_mask()[[0, 5, 9]], 16, 5, gen)
     y = 3.0 * torch.randn(3, 16, generator=gen)  # large errors: Huber's clipped branch runs too
-    theta = learner.online.flat.detach().clone().requires_grad_()
-    q = ensemble_forward(learner.online.unflatten(theta), batch["obs"])
+    theta = net.flat.detach().clone().requires_grad_()
+    q = ensemble_forward(net.unflatten(theta), batch["obs"])
     q_sa = q.gather(2, batch["action"].unsqueeze(2)).squeeze(2)
     loss = F.smooth_l1_loss(q_sa, y, reduction="none").mean(1) if huber else (q_sa - y).square().mean(1)
     (want,) = torch.autograd.grad(loss.sum(), theta)
-    got_q, got_loss, got = td_loss_and_grad(learner.online, theta.detach(), batch["obs"], batch["action"], y, huber)
+    got_q, got_loss, got = td_loss_and_grad(net, theta.detach(), batch["obs"], batch["action"], y, huber)
     torch.testing.assert_close(got_q, q_sa.detach())
     torch.testing.assert_close(got_loss, loss.detach())
     torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-7)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import pytest
 import torch
 from torch import nn
 
@@ -12,24 +13,26 @@ from highway_srl.agents.ensemble import MLPEnsemble
 
 def _separate_copies(ens: MLPEnsemble) -> list[nn.Sequential]:
     nets = []
-    w1, b1, w2, b2, w3, b3 = ens.params()
+    params = ens.params()
     for m in range(ens.num_members):
-        net = nn.Sequential(
-            nn.Linear(ens.in_dim, ens.hidden), nn.ReLU(), nn.Linear(ens.hidden, ens.hidden), nn.ReLU(),
-            nn.Linear(ens.hidden, ens.out_dim),
-        )  # fmt: skip
+        layers = []
+        for fan_in, fan_out in zip(ens.widths[:-1], ens.widths[1:]):
+            layers += [nn.Linear(fan_in, fan_out), nn.ReLU()]
+        net = nn.Sequential(*layers[:-1])  # no ReLU after the output layer
         with torch.no_grad():
-            for lin, w, b in zip((net[0], net[2], net[4]), (w1, w2, w3), (b1, b2, b3)):
+            for lin, w, b in zip(net[0::2], params[0::2], params[1::2]):
                 lin.weight.copy_(w[m].T)
                 lin.bias.copy_(b[m, 0])
         nets.append(net)
     return nets
 
 
-def test_ensemble_matches_separate_mlps_with_copied_weights():
+@pytest.mark.parametrize("hidden", [32, (16, 8, 12)], ids=["paper-shape", "three-hidden-layers"])
+def test_ensemble_matches_separate_mlps_with_copied_weights(hidden):
     torch.manual_seed(0)
-    ens = MLPEnsemble(5, 37, 4, hidden=32)
+    ens = MLPEnsemble(5, 37, 4, hidden=hidden)
     nets = _separate_copies(ens)
+    assert len(nets[0]) == 2 * len(ens.widths) - 3  # every layer, a ReLU between two
     x = torch.randn(7, 37)
     want = torch.stack([net(x) for net in nets])
     torch.testing.assert_close(ens(x), want)  # shared input (B, in) -> (M, B, out)

@@ -4,7 +4,8 @@ import pytest
 import torch
 
 from highway_srl.agents.dqn import DQNConfig
-from highway_srl.agents.trainer import TrainConfig, Trainer
+from highway_srl.agents.train_config import TrainConfig
+from highway_srl.agents.trainer import Trainer
 from highway_srl.rules.episode import FinishedEpisodes
 
 

@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from highway_srl.agents.trainer import Trainer
-from highway_srl.experiments import train as train_mod
+from highway_srl.experiments import train as train_mod, training_log
 from highway_srl.experiments.policy import load_policy
 from highway_srl.experiments.train import train_run
 
@@ -80,11 +80,12 @@ def test_saved_model_gives_the_same_greedy_actions(tmp_path, trainer_config):
 KILLED_CHILD = """
 import json, os, signal, sys
 import torch
-from highway_srl.agents.trainer import Trainer, TrainConfig
-from highway_srl.experiments import train as train_mod
+from highway_srl.agents.train_config import TrainConfig
+from highway_srl.agents.trainer import Trainer
+from highway_srl.experiments import train as train_mod, training_log
 torch.set_num_threads(1)
 cfg, out, kill_at = TrainConfig.from_dict(json.loads(sys.argv[1])), sys.argv[2], int(sys.argv[3])
-train_mod.LOG_EVERY, train_mod.RECENT_EPISODES = int(sys.argv[4]), int(sys.argv[5])
+training_log.LOG_EVERY, training_log.RECENT_EPISODES = int(sys.argv[4]), int(sys.argv[5])
 real_step = Trainer.step
 def dying_step(self):
     if self.env_steps >= kill_at:
@@ -147,8 +148,8 @@ def test_run_killed_after_a_checkpoint_resumes_to_the_same_files(tmp_path, monke
     TensorBoard scalars included."""
     cfg = dataclasses.replace(trainer_config(steps=1400), envs=2)
     log_every, window, every, kill_at = 151, 3, 700, 1100
-    monkeypatch.setattr(train_mod, "LOG_EVERY", log_every)
-    monkeypatch.setattr(train_mod, "RECENT_EPISODES", window)
+    monkeypatch.setattr(training_log, "LOG_EVERY", log_every)
+    monkeypatch.setattr(training_log, "RECENT_EPISODES", window)
     train_run(cfg, tmp_path / "straight", checkpoint_every=every, progress=False)
     root = Path(__file__).resolve().parents[2]
     env = {**os.environ, "PYTHONPATH": str(root), "OMP_NUM_THREADS": "1"}

@@ -4,7 +4,8 @@ import pytest
 import torch
 
 from highway_srl.agents.dqn import DQNConfig
-from highway_srl.agents.trainer import TrainConfig, Trainer
+from highway_srl.agents.train_config import TrainConfig
+from highway_srl.agents.trainer import Trainer
 
 
 def small(**kw) -> TrainConfig:
@@ -34,13 +35,6 @@ def test_members_without_a_full_batch_take_no_step_and_owe_nothing():
     acted = torch.zeros(8, dtype=torch.long)
     members, updates = trainer.update_counts(acted)  # empty buffers
     assert members.numel() == 0 and float(trainer.update_credit.sum()) == 0.0
-
-
-def test_legacy_updates_per_step_gives_that_many_steps_to_every_member_that_acted():
-    trainer = Trainer(small(method="moe-rm-srl", replay_ratio=None, updates_per_step=3))
-    trainer.replay.size[:] = 10
-    members, updates = trainer.update_counts(torch.tensor([0, 0, 0, 5, -1, 3, 0, 5]))
-    assert dict(zip(members.tolist(), updates.tolist())) == {0: 3, 3: 3, 5: 3}
 
 
 @pytest.mark.parametrize("method", ["moe-rm-srl", "lm-rl"])
@@ -91,18 +85,47 @@ def test_static_and_compact_forms_train_one_network_per_seed_alike(method):
 
 
 def test_config_written_before_profiles_and_replay_ratio_reads_as_what_it_ran_under():
-    old = {"method": "sr-rl", "updates_per_step": 4, "seeds": [0]}
+    # updates_per_step: that many steps per vector step for the seed's one network, which acts in all 8 envs
+    old = {"method": "sr-rl", "updates_per_step": 2, "envs": 8, "seeds": [0]}
     cfg = TrainConfig.from_dict(old)
-    assert (cfg.profile, cfg.adversary, cfg.replay_ratio, cfg.updates_per_step) == ("safe", "mild", None, 4)
-    older = TrainConfig.from_dict({"method": "sr-rl"})  # no rate key at all: the old default, 4
-    assert (older.replay_ratio, older.updates_per_step) == (None, 4)
-    new = TrainConfig.from_dict(TrainConfig().to_dict())
-    assert (new.profile, new.adversary, new.replay_ratio, new.updates_per_step) == ("paper", "paper", 1.0, None)
+    assert (cfg.profile, cfg.adversary, cfg.replay_ratio) == ("safe", "mild", 0.25)
+    assert not hasattr(cfg, "updates_per_step") and "updates_per_step" not in cfg.to_dict()
+    older = TrainConfig.from_dict({"method": "lm-rl"})  # no rate key at all: the old default, 4 per 16 envs
+    assert older.replay_ratio == 0.25
+    between = TrainConfig.from_dict({**TrainConfig(method="rl").to_dict(), "replay_ratio": None, "updates_per_step": 3})
+    assert between.replay_ratio == 3 / 16
+    new = TrainConfig.from_dict({**TrainConfig().to_dict(), "updates_per_step": None})  # null beside replay_ratio
+    assert (new.profile, new.adversary, new.replay_ratio) == ("paper", "paper", 1.0)
+
+
+def test_a_config_written_before_replay_ratio_loads_with_an_equal_schedule():
+    """Per vector step, the old rate's steps for the one network per seed (it acts in every env) are the
+    converted replay_ratio's steps, with no credit carried over."""
+    trainer = Trainer(TrainConfig.from_dict({**small(method="rl", seeds=(0, 1)).to_dict(), "replay_ratio": None,
+                                             "updates_per_step": 2}))
+    trainer.replay.size[:] = 10
+    for _ in range(3):
+        members, updates = trainer.update_counts(torch.tensor([0] * 8 + [1] * 8))  # envs 0-7: seed 0
+        assert dict(zip(members.tolist(), updates.tolist())) == {0: 2, 1: 2}
+    assert float(trainer.update_credit.abs().sum()) == 0.0
+
+
+@pytest.mark.parametrize("old, needle", [
+    ({"method": "moe-rm-srl", "updates_per_step": 4}, "has no replay_ratio equal to it"),  # experts' shares vary
+    ({"method": "moe-rm-srl", "options": {"no_rm": True}}, "has no replay_ratio equal to it"),
+    ({"method": "rl", "updates_per_step": 1, "envs": 49}, "has no replay_ratio equal to it"),  # 1/49 x 49 != 1
+    ({"method": "rl", "replay_ratio": 0.5, "updates_per_step": 2}, "both replay_ratio and updates_per_step"),
+    ({"method": "rl", "updates_per_step": 2.5}, "updates_per_step must be a non-negative integer"),
+])
+def test_an_older_rate_no_replay_ratio_equals_is_refused_in_one_line(old, needle):
+    with pytest.raises(ValueError, match=needle) as err:
+        TrainConfig.from_dict(old)
+    assert "\n" not in str(err.value)
 
 
 @pytest.mark.parametrize("kw, needle", [
     ({"profile": "cautious"}, "unknown profile"), ({"adversary": "evil"}, "unknown adversary"),
-    ({"replay_ratio": -1.0}, "replay_ratio"), ({"updates_per_step": 2}, "exactly one"),
+    ({"replay_ratio": -1.0}, "replay_ratio"),
 ])
 def test_bad_settings_are_refused_by_name(kw, needle):
     with pytest.raises(ValueError, match=needle):

@@ -37,7 +37,7 @@ def test_rule_based_trains_by_just_driving_and_evaluates(tmp_path, capsys):
 
 def test_lm_rl_saves_its_lagrange_multiplier_with_the_model(tmp_path):
     from highway_srl.agents.dqn import DQNConfig
-    from highway_srl.agents.trainer import TrainConfig
+    from highway_srl.agents.train_config import TrainConfig
     from highway_srl.experiments.evaluate import evaluate_run
     from highway_srl.experiments.policy import load_policy, read_model
     from highway_srl.experiments.train import train_run

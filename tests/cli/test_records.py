@@ -14,9 +14,9 @@ from safetensors.torch import load_file, save_file
 from cli_runs import TRAIN, hashes, interrupted_run, one_line_error, run
 
 from highway_srl.agents.dqn import DQNConfig
-from highway_srl.agents.trainer import TrainConfig, check_config
+from highway_srl.agents.train_config import TrainConfig, check_config
 from highway_srl.cli import main
-from highway_srl.experiments import train as train_mod
+from highway_srl.experiments import train as train_mod, training_log
 
 
 def _copy(run_dir: Path, tmp_path: Path) -> Path:
@@ -68,7 +68,7 @@ def test_a_config_json_no_run_can_have_is_one_line(capsys, finished_run, tmp_pat
 
 def test_training_stops_at_the_first_non_finite_weight_naming_step_and_expert(tmp_path, monkeypatch):
     """NaN put into expert E2,1's weights at env step 96: the row at 160 (LOG_EVERY 80) stops the run."""
-    monkeypatch.setattr(train_mod, "LOG_EVERY", 80)
+    monkeypatch.setattr(training_log, "LOG_EVERY", 80)
     real_step = train_mod.Trainer.step
 
     def poisoned(self):
@@ -85,9 +85,9 @@ def test_training_stops_at_the_first_non_finite_weight_naming_step_and_expert(tm
 
 
 def test_training_stops_at_a_non_finite_loss(tmp_path, monkeypatch):
-    monkeypatch.setattr(train_mod, "LOG_EVERY", 80)
-    real_log = train_mod.TrainingLog.log
-    monkeypatch.setattr(train_mod.TrainingLog, "log", lambda self, t: {**real_log(self, t), "loss": float("inf")})
+    monkeypatch.setattr(training_log, "LOG_EVERY", 80)
+    real_log = training_log.TrainingLog.log
+    monkeypatch.setattr(training_log.TrainingLog, "log", lambda self, t: {**real_log(self, t), "loss": float("inf")})
     cfg = TrainConfig(traffic="A", steps=400, envs=8, dqn=DQNConfig(learning_starts=64))
     with pytest.raises(train_mod.TrainingDiverged, match="env step 80: the loss, Q-value or TD error"):
         train_mod.train_run(cfg, tmp_path / "run", progress=False)
@@ -134,7 +134,7 @@ def killed_run(tmp_path_factory):
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(train_mod.Trainer, "step", dying)
-        patch.setattr(train_mod, "LOG_EVERY", 200)
+        patch.setattr(training_log, "LOG_EVERY", 200)
         code = main(TRAIN + ["--envs", "1", "--steps", "1400", "--checkpoint-every", "700", "--out", str(out)])
     assert code == 130 and train_mod.last_checkpoint_step(out) == 700
     assert len((out / "episodes.jsonl").read_text().splitlines()) == 3

@@ -257,9 +257,7 @@ def test_bench_sim_refuses_more_envs_than_memory_before_allocating(capsys):
 
 @pytest.mark.parametrize("argv, needle", [
     (TRAIN + ["--learning-starts", "-5", "--out", "x"], "--learning-starts"),
-    (TRAIN + ["--updates-per-step", "0", "--out", "x"], "--updates-per-step"),
     (TRAIN + ["--replay-ratio", "-1", "--out", "x"], "--replay-ratio"),
-    (TRAIN + ["--replay-ratio", "1", "--updates-per-step", "2", "--out", "x"], "not allowed with"),
     (TRAIN + ["--profile", "careful", "--out", "x"], "unknown profile 'careful'"),
     (TRAIN + ["--adversary", "evil", "--out", "x"], "unknown adversary 'evil'"),
     (TRAIN + ["--steps", "5.5", "--out", "x"], "--steps"),

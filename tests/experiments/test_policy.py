@@ -7,7 +7,8 @@ import torch
 
 from highway_srl.agents.checkpoint import policy_tensors, save_checkpoint, split_policy_tensors
 from highway_srl.agents.dqn import DQNConfig
-from highway_srl.agents.trainer import Trainer, TrainConfig
+from highway_srl.agents.train_config import TrainConfig
+from highway_srl.agents.trainer import Trainer
 from highway_srl.experiments.policy import load_policy, read_model
 from highway_srl.experiments.train import train_run
 

@@ -1,7 +1,7 @@
 """§4.2, "Rise time of episode reward: the number of training steps required for the episode return to reach
 90% of its peak value", on the smoothed return; golden values by hand."""
 
-from highway_srl.experiments.train import SMOOTH_EPISODES, rise_time, training_metrics
+from highway_srl.experiments.training_metrics import SMOOTH_EPISODES, rise_time, training_metrics
 
 STEPS = [100, 200, 300, 400, 500]
 

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from highway_srl.agents.dqn import DQNConfig
-from highway_srl.agents.trainer import TrainConfig
+from highway_srl.agents.train_config import TrainConfig
 from highway_srl.experiments.train import train_run
 from highway_srl.rules import SafetyLayer
 from highway_srl.rules.raw import RawSafetyLayer

@@ -9,8 +9,9 @@ import sys
 import pytest
 
 from highway_srl.agents.dqn import DQNConfig
-from highway_srl.agents.trainer import TrainConfig, Trainer
-from highway_srl.experiments import train as train_mod
+from highway_srl.agents.train_config import TrainConfig
+from highway_srl.agents.trainer import Trainer
+from highway_srl.experiments import train as train_mod, training_log
 
 LEARNING_STARTS = 400
 NEW_TAGS = {"loss", "q_mean", "td_error", "epsilon", "episodes_per_s", "steps_per_s", "usage/fallback", "usage/E1_1"}
@@ -22,7 +23,7 @@ SEEDS = (0, 1)
 def run(tmp_path_factory):
     out = tmp_path_factory.mktemp("logs") / "run"
     mp = pytest.MonkeyPatch()
-    mp.setattr(train_mod, "LOG_EVERY", 200)
+    mp.setattr(training_log, "LOG_EVERY", 200)
     try:
         cfg = TrainConfig(steps=1000, envs=2, seeds=SEEDS,
                           dqn=DQNConfig(learning_starts=LEARNING_STARTS, total_steps=1000))
@@ -95,7 +96,7 @@ def test_each_seed_has_its_own_tensorboard_run_of_its_episodes(run):
 
 def test_a_run_without_tensorboard_says_so_once_and_writes_no_tb(tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "torch.utils.tensorboard", None)  # its import fails as if not installed
-    monkeypatch.setattr(train_mod, "LOG_EVERY", 100)
+    monkeypatch.setattr(training_log, "LOG_EVERY", 100)
     cfg = TrainConfig(steps=300, envs=2, dqn=DQNConfig(learning_starts=100, total_steps=300))
     train_mod.train_run(cfg, tmp_path / "run", progress=False)
     notices = [line for line in capsys.readouterr().err.splitlines() if "TensorBoard" in line]
@@ -108,7 +109,7 @@ def test_a_checkpoint_window_without_episode_lengths_still_restores(tmp_path):
     """A resume checkpoint written before lengths were kept holds [return, collision] pairs: they load, and
     mean_length is over the entries that have a length; a bad length is one clear error."""
     trainer = Trainer(TrainConfig(steps=300, envs=2))
-    log = train_mod.TrainingLog(tmp_path, trainer)
+    log = training_log.TrainingLog(tmp_path, trainer)
     state = {"step": 0, "ended": 2, "recent": [[1.5, False], [2.5, True, 40]], "usage": [0] * len(log.usage)}
     log.restore(state, trainer, "meta.json: log")
     assert log.recent == [(1.5, False, None), (2.5, True, 40)]

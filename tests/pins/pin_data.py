@@ -84,7 +84,7 @@ def method_fingerprint(method: str, options: dict, tmp: Path) -> dict:
     """A short train (1300 env steps, 4 envs: every env ends an episode, updates from step 128) and a 6-episode evaluation at level C;
     returns the training metrics, a hash of the saved model and the evaluation summary."""
     from highway_srl.agents.dqn import DQNConfig
-    from highway_srl.agents.trainer import TrainConfig
+    from highway_srl.agents.train_config import TrainConfig
     from highway_srl.experiments.evaluate import evaluate_run
     from highway_srl.experiments.train import train_run
 

@@ -19,7 +19,7 @@ from highway_srl.experiments.collisions import summarise as census_summary
 from highway_srl.experiments.evaluate import summarise
 from highway_srl.experiments.runs import append_jsonl, provenance, write_json
 from highway_srl.study.jobs import OURS, SCENES, Job
-from highway_srl.experiments.train import training_metrics
+from highway_srl.experiments.training_metrics import training_metrics
 
 GOOD = {"T_c": 1.0, "rise": 0.3, "C_r": 1.0, "speed": 8.0, "R_r": 220.0, "R_s": 0.8}
 POOR = {"T_c": 0.5, "rise": 0.8, "C_r": 0.7, "speed": 6.0, "R_r": 100.0, "R_s": 0.4}
@@ -77,7 +77,7 @@ def write_fake_job(root: Path, job: Job, numbers: dict | None = None, episodes_p
 
 
 def fake_work(job_dict: dict, root: str, device: str = "cpu", threads: int = 1, return_files: bool = False) -> dict:
-    """Stands in for runner.run_job: writes a finished folder, counts its calls in ROOT.calls.jsonl."""
+    """Stands in for executors.run_job: writes a finished folder, counts its calls in ROOT.calls.jsonl."""
     job = Job.from_dict(job_dict)
     numbers_path = Path(f"{root}.numbers.json")
     numbers = json.loads(numbers_path.read_text()).get(job.id) if numbers_path.exists() else None

@@ -13,7 +13,7 @@ import study_fakes as fakes
 from highway_srl.cli import main
 from highway_srl.study.jobs import OURS
 from highway_srl.study.runner import reproduce
-from highway_srl.study.tables import load_results
+from highway_srl.study.results import load_results
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ from highway_srl.study.report import write_report
 from highway_srl.study.verdicts import Check, Claim, claims, dominates
 from highway_srl.study.runner import reproduce
 from highway_srl.study.jobs import OURS
-from highway_srl.study.tables import load_results
+from highway_srl.study.results import load_results
 
 WORSE = {"T_c": 0.2, "rise": 0.95, "C_r": 0.4, "speed": 4.0, "R_r": 20.0, "R_s": 0.1}
 BETTER = {"T_c": 1.0, "rise": 0.1, "C_r": 1.0, "speed": 9.5, "R_r": 300.0, "R_s": 0.95}
@@ -132,7 +132,7 @@ def test_side_by_side_cells_carry_the_spread_over_seeds_and_the_deployment_inter
 
     from highway_srl.study.jobs import Job
     from highway_srl.study.side_by_side import cell
-    from highway_srl.study.tables import Result
+    from highway_srl.study.results import Result
 
     assert cell(None, "T_c") == (None, "–")
     res = Result(Job(OURS, "two-lane", steps=100, seeds=(0, 1)), "done", None, Path("x"),

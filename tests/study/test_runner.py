@@ -15,8 +15,9 @@ from highway_srl.agents import registry as methods_mod
 from highway_srl.cli import main
 from highway_srl.experiments import evaluate as evaluate_mod
 from highway_srl.experiments import train as train_mod
-from highway_srl.study import runner as runner_mod
-from highway_srl.study.runner import place_jobs, reproduce, run_job
+from highway_srl.study import executors
+from highway_srl.study.executors import place_jobs, run_job
+from highway_srl.study.runner import reproduce
 from highway_srl.experiments.runs import read_json
 from highway_srl.study.jobs import OURS, study_jobs
 
@@ -110,11 +111,11 @@ def test_jobs_spread_round_robin_over_the_gpus_and_otherwise_share_the_given_dev
 def test_local_workers_get_each_job_on_its_placed_device(tmp_path, monkeypatch):
     """The CPU equivalent of --device cuda --jobs 2 on a 2-GPU machine: two worker processes, jobs alternating
     between the devices (the stand-in work only records the device it was given)."""
-    monkeypatch.setattr(runner_mod, "gpu_count", lambda: 2)
+    monkeypatch.setattr(executors, "gpu_count", lambda: 2)
     root = tmp_path / "study"
     jobs = study_jobs("smoke", (OURS,))[:4]
     results = []
-    runner_mod.run_local(jobs, root, "cuda", 2, lambda job, r: results.append(r), work=fakes.device_work)
+    executors.run_local(jobs, root, "cuda", 2, lambda job, r: results.append(r), work=fakes.device_work)
     rows = [json.loads(line) for line in (tmp_path / "study.devices.jsonl").read_text().splitlines()]
     placed = dict(zip([j.id for j in jobs], ["cuda:0", "cuda:1", "cuda:0", "cuda:1"]))
     assert {r["job"]: r["device"] for r in rows} == placed and len(results) == 4
@@ -219,7 +220,7 @@ def test_workers_take_one_thread_unless_omp_num_threads_says_more(monkeypatch):
     since a second thread per worker collapses when the cores are shared (docs/benchmarks.md)."""
     from types import SimpleNamespace
 
-    from highway_srl.study.runner import run_local
+    from highway_srl.study.executors import run_local
 
     job, seen = SimpleNamespace(to_dict=dict), []
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
@@ -236,7 +237,7 @@ def _threads_of(job_dict, root, device, threads):
 
 def test_job_fraction_reads_the_last_logged_step_of_a_running_job(tmp_path):
     from highway_srl.study.jobs import Job
-    from highway_srl.study.tables import job_fraction
+    from highway_srl.study.results import job_fraction
 
     job = Job("rl", "two-lane", steps=8000)
     assert job_fraction(tmp_path, job) == 0.0  # nothing logged yet
@@ -292,7 +293,7 @@ def test_a_worker_ends_when_the_study_process_is_killed(tmp_path):
     script = textwrap.dedent(f"""
         import multiprocessing as mp, os, time
         from concurrent.futures import ProcessPoolExecutor
-        from highway_srl.study.runner import exit_with_parent
+        from highway_srl.study.executors import exit_with_parent
 
         def job(path):
             open(path, "w").write(str(os.getpid()))

@@ -11,7 +11,7 @@ import torch
 from highway_srl.rules.metrics import mean_interval
 from highway_srl.study import stats as S
 from highway_srl.study.jobs import OURS, Job
-from highway_srl.study.tables import Result, Results
+from highway_srl.study.results import Result, Results
 from highway_srl.study.verdicts import ablation_check, claims
 
 

@@ -64,7 +64,7 @@ def test_a_job_written_before_profiles_reads_as_safe_mild_with_its_update_count_
     assert (job.profile, job.adversary, job.replay_ratio, job.legacy_updates_per_step) == ("safe", "mild", None, 1)
     assert job.folder == "runs/two-lane/rl" and not job.beyond_the_paper
     cfg = job.train_config("cpu")
-    assert (cfg.replay_ratio, cfg.updates_per_step, cfg.profile) == (None, 1, "safe")
+    assert (cfg.replay_ratio, cfg.profile) == (1 / 16, "safe")  # 1 step per 16-env vector step of its network
 
 
 def test_paper_budget_is_the_papers():
