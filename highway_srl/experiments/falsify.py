@@ -26,7 +26,7 @@ from highway_srl.agents.gating import explore_gate
 from highway_srl.constants import DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, TRAFFIC_LEVELS, V_MAX_MPS
 from highway_srl.experiments.collisions import DecisionTrace
 from highway_srl.experiments.runs import check_output_folder, read_json, write_json
-from highway_srl.rules import ACTIONS, SafetyLayer, control_profile
+from highway_srl.rules import ACTIONS, FASTER, IDLE, LANE_CHANGE, SLOWER, SafetyLayer, control_profile
 from highway_srl.scenarios import check_scenario
 from highway_srl.sim import World
 
@@ -280,19 +280,36 @@ def load_case(path: str | Path) -> Case:
     return case
 
 
-def replay_case(case: Case, profile: str | None = None) -> dict:
-    """Drive the case's episode again with its actions (under `profile`, default the case's own): whether
-    it collides, where, whether every action was allowed, and the decision trace's verdict."""
+# where a replaying profile forbids a recorded action: the most cautious allowed one instead
+CAUTIOUS_ORDER = (SLOWER, IDLE, LANE_CHANGE, FASTER)
+
+
+def replay_case(case: Case, profile: str | None = None, substitute: bool = False, **layer_options) -> dict:
+    """Drive the case's episode again with its actions (under `profile`, default the case's own, and the
+    SafetyLayer options given): whether it collides, where, whether every action was allowed, and the
+    decision trace's verdict. substitute: where the profile forbids the recorded action, take the first
+    allowed of CAUTIOUS_ORDER instead (how a counterexample found under one profile is put to another:
+    the ego follows the recorded plan as far as the rule layer lets it); `substituted` counts them."""
     profile = profile or case.profile
     world = World(case.scene, case.level, case.adversarial, 1, "cpu", case.seed + case.env, max_steps=case.steps,
                   adversary=case.adversary)
-    layer = SafetyLayer(world.road, profile=profile)
+    layer = SafetyLayer(world.road, profile=profile, **layer_options)
     recorded = torch.tensor(case.actions)
+    order = torch.tensor(CAUTIOUS_ORDER)
+    substituted = []
+
+    def pick(step, view):
+        action, mask = recorded[step:step + 1], view.primary.mask
+        if substitute and not bool(mask[0, action[0]]):
+            substituted.append(step)
+            return order[mask[0, order].nonzero()[0]]
+        return action
+
     trace = DecisionTrace(_AllowedActions())
-    drive(world, layer, lambda step, view: recorded[step:step + 1], trace, limit=len(case.actions))
+    drive(world, layer, pick, trace, limit=len(case.actions))
     rec = trace.records[0] if trace.records else None
     result = {"profile": profile, "collided": rec is not None, "step": None if rec is None else rec["step"],
-              "expected_step": len(case.actions) - 1}
+              "expected_step": len(case.actions) - 1, "substituted": len(substituted)}
     if rec is not None:
         result.update(cause=cause_of(rec), ego_avoidable=rec["ego_avoidable"],
                       all_allowed=all(r["action"] in r["allowed"] for r in rec["decisions"]))
