@@ -487,7 +487,7 @@ def _cmd_falsify(args) -> int:
 
     if args.replay is not None:
         case = fz.load_case(args.replay)
-        result = fz.replay_case(case, args.profile)
+        result = fz.replay_case(case, args.profile, args.substitute)
         if args.gif is not None:
             result["gif"] = [str(p) for p in fz.render_case(case, args.gif, args.profile, args.overwrite)]
         print(json.dumps(result, indent=2) if args.json else
@@ -506,7 +506,7 @@ def _cmd_falsify(args) -> int:
         scenes=tuple(x.strip() for x in args.scenes.split(",") if x.strip()), levels=tuple(args.levels),
         modes=tuple(modes[m] for m in names), profile=args.profile or "safe", policy=args.policy,
         episodes=args.episodes, envs=args.envs, seed=args.seed, steps=args.steps, adversary=args.adversary)
-    report = fz.falsify(settings, args.out)
+    report = fz.falsify(settings, args.out, processes=args.processes)
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
@@ -540,8 +540,12 @@ def _add_falsify(sub) -> None:
     p.add_argument("--steps", type=positive, default=320, help="episode length in steps")
     p.add_argument("--seed", type=non_negative, default=0)
     p.add_argument("--out", default=None, help="folder for report.json and the cases (one per cause)")
+    p.add_argument("--processes", type=positive, default=1, help="worker processes of one thread each, sharing "
+                   "the batches (the report is the same for any count)")
     p.add_argument("--replay", default=None, metavar="CASE.json", help="replay a case and confirm its collision "
                    "(exit status 1 if it does not recur)")
+    p.add_argument("--substitute", action="store_true", help="with --replay: where the profile forbids a recorded "
+                   "action, take the most cautious allowed one (Slower, Idle, LaneChange, Faster)")
     p.add_argument("--gif", default=None, metavar="OUT.gif", help="with --replay: draw the episode (a PNG beside it)")
     p.add_argument("--overwrite", action="store_true", help="with --gif: replace the GIF and PNG if they exist")
     p.add_argument("--json", action="store_true")

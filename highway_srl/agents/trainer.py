@@ -37,7 +37,10 @@ EPISODE_KEYS = {"ret": "episode.ep_return", "deploy": "episode.ep_deploy", "spee
 # the update log's sums since the last row of scalars.csv (a resumed run's next row averages the same updates)
 UPDATE_LOG_KEYS = ("counters.update_log_sums", "counters.update_log_count")
 # keys a resume checkpoint may lack (written before they existed); the loader fills them in
-OPTIONAL_KEYS = frozenset({"episode.ep_rm_return", *UPDATE_LOG_KEYS})
+# per seed, the training collisions by verdict: ego-avoidable, unavoidable, not judged (VERDICT_COLUMNS)
+VERDICT_KEY = "counters.collision_verdicts"
+VERDICT_COLUMNS = ("ego_avoidable", "unavoidable", "not_judged")
+OPTIONAL_KEYS = frozenset({"episode.ep_rm_return", *UPDATE_LOG_KEYS, VERDICT_KEY})
 
 
 @dataclass
@@ -64,6 +67,7 @@ class Episode:
     success: bool
     deploy_reward: float  # the paper's R_r of the episode
     rm_return: float  # the paper's RM reward summed over the episode: T_r on one scale for every method
+    ego_avoidable: bool | None = None  # a collision's verdict (rules.avoidable); None: no collision or not judged
 
 
 class Trainer:
@@ -124,6 +128,10 @@ class Trainer:
         self.static_rounds = math.ceil(cfg.replay_ratio * cfg.envs) if self.trained.numel() else 0
         self.method.start(self.batch, self.device, self.static)
         self._view = self.layer.observe(self.world)
+        # set by train_run in the compact form: judges each collision where its episode ends (judge_collisions)
+        self.collision_trace = None
+        self.verdicts: dict[tuple[int, int], bool] = {}  # (env, vector step) -> ego-avoidable, until drained
+        self.verdict_counts = torch.zeros(self.num_seeds, len(VERDICT_COLUMNS), dtype=torch.long)  # host counts
         compiled = cfg.compile and compile_vector_step(self, cfg.compile, cfg.compile_unrolled)
         self.run_step = compiled or self.vector_step
 
@@ -184,6 +192,9 @@ class Trainer:
         cur = layer.observe(world) if self.static else self.current
         t = policy_step(self.method, self.learner, world, layer, cur, draws.explore, draws.act, self.stats, train=True)
         decision, events, nxt = t.decision, t.events, t.view
+        if self.collision_trace is not None:  # device clones only
+            self.collision_trace.keep_decision(cur, decision)
+            self.collision_trace.keep_state(world)
         self.usage.index_add_(0, decision.member + 1, torch.ones_like(decision.member))
         model = cur.select(decision.use_second)
         self.method.store(self.replay, decision, model.obs, t.reward, nxt.primary.obs, events.terminated, t.cost,
@@ -198,8 +209,11 @@ class Trainer:
             self._view = None  # the next step observes the new state
         else:
             if bool(done.any()):
+                self.judge_collisions(events.collision)
                 world.reset(done)
                 layer.reset(done)
+                if self.collision_trace is not None:  # a new episode's decisions are judged on their own
+                    self.collision_trace.episodes_restart(world, done)
                 nxt = layer.observe(world)
             self._view = nxt
         return decision.member, t.cost, done
@@ -218,13 +232,28 @@ class Trainer:
         need = self.owed_updates(acted)[self.trained]
         return need > torch.arange(rounds, device=need.device)[:, None]
 
+    def judge_collisions(self, collision: torch.Tensor) -> None:
+        """Where episodes end (compact form, before the reset): the ego-avoidable verdict of each collision
+        (B,) by collision_trace, kept by env and vector step until drain hands it to the episode."""
+        if self.collision_trace is None:
+            return
+        records = self.collision_trace.judge_ended(self.world, collision)
+        if records:
+            tag = int(self.step_count)
+            self.verdicts.update({(rec["env"], tag): rec["ego_avoidable"] for rec in records})
+
     def drain(self) -> list[Episode]:
         """The finished episodes not yet read, in the order they ended (one host read)."""
         cfg = self.config
         values, tags = self.finished.drain()
-        return [Episode(cfg.seeds[r.env // cfg.envs], tag * cfg.envs, r.ret, r.length, r.collision, r.avg_speed,
-                        r.success, r.deploy_reward, r.rm_return)
-                for r, tag in zip(map(episode_row, values), tags)]
+        episodes = [Episode(cfg.seeds[r.env // cfg.envs], tag * cfg.envs, r.ret, r.length, r.collision, r.avg_speed,
+                            r.success, r.deploy_reward, r.rm_return, self.verdicts.pop((r.env, tag), None))
+                    for r, tag in zip(map(episode_row, values), tags)]
+        for e in episodes:
+            if e.collision:
+                column = 2 if e.ego_avoidable is None else int(not e.ego_avoidable)
+                self.verdict_counts[cfg.seeds.index(e.seed), column] += 1
+        return episodes
 
     def owed_updates(self, acted: torch.Tensor) -> torch.Tensor:
         """(M,) long on the device: the gradient steps each member takes after a vector step in which acted
@@ -293,6 +322,7 @@ class Trainer:
         state["counters.usage"] = self.usage
         state["counters.update_credit"] = self.update_credit
         state[UPDATE_LOG_KEYS[0]], state[UPDATE_LOG_KEYS[1]] = self.update_log.sums, self.update_log.count
+        state[VERDICT_KEY] = self.verdict_counts
         return {k: v.detach().contiguous() for k, v in state.items()}
 
     def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
@@ -313,6 +343,8 @@ class Trainer:
         if UPDATE_LOG_KEYS[0] in state:  # copied in place: the compiled step holds these tensors
             self.update_log.sums.copy_(state[UPDATE_LOG_KEYS[0]])
             self.update_log.count.copy_(state[UPDATE_LOG_KEYS[1]])
+        if VERDICT_KEY in state:  # checkpoints written before the verdicts were counted lack it
+            self.verdict_counts = state[VERDICT_KEY].cpu().clone()
         self.method.load_state_dict(method)
         self.method.start(self.batch, self.device, self.static)
         self._view = self.layer.observe(self.world)

@@ -127,7 +127,11 @@ class DecisionTrace:
     (rules.avoidable): it keeps the world's positions and speeds of the last `window` steps, classifies each
     new collision (classify: kind, who was changing lanes, the vehicle hit) and gives every decision row the
     hit vehicle's offsets (dx, dy) and speed (v_sv) in the state the decision was taken in; the record gets
-    kind, ego_changing, sv_changing, ego_avoidable (bool) and reason. verdicts() counts them."""
+    kind, ego_changing, sv_changing, ego_avoidable (bool) and reason. verdicts() counts them.
+
+    A loop that must not read the device every step (the trainer's compact step) calls keep_decision and
+    keep_state each step (device clones only), judge_ended where episodes end, before the reset (the records
+    of that step's collisions, judged, handed over and not kept), and episodes_restart after it."""
 
     def __init__(self, method, window: int = 8) -> None:
         if window < 1:
@@ -135,40 +139,78 @@ class DecisionTrace:
         self.method, self.step, self.records = method, 0, []
         self._recent: collections.deque = collections.deque(maxlen=window)
         self._states: collections.deque = collections.deque(maxlen=window + 1)  # (step, x, y, v) after a step
+        self._start: torch.Tensor | None = None  # (B,) each env's first decision of its episode (episodes_restart)
 
     def __call__(self, view, t, alive) -> None:
-        model = view.select(t.decision.use_second)
+        self.keep_decision(view, t.decision)
+        new = t.events.collision & alive
+        if bool(new.any()):  # an analysis hook: one host read per step, as the census's
+            self._record(new.nonzero().flatten().tolist())
+
+    def keep_decision(self, view, decision) -> None:
+        """Keep this step's decision (clones on the device; no host read)."""
+        model = view.select(decision.use_second)
         snap = view.snapshot
         self._recent.append({"step": self.step, **{k: v.clone() for k, v in (  # buffers may be reused
-            ("action", t.decision.action), ("mask", self.method.safe_mask(model)), ("r1", model.r_star[:, 0]),
+            ("action", decision.action), ("mask", self.method.safe_mask(model)), ("r1", model.r_star[:, 0]),
             ("gap1", model.gaps_m[:, 0]), ("v", snap.ego_vx), ("v1", model.vehicles.vx[:, 0]), ("x", snap.ego_x),
             ("y", snap.ego_y), ("lane", snap.ego_lane), ("m", model.m_l_ego))}})
         self.step += 1
-        new = t.events.collision & alive
-        if bool(new.any()):  # an analysis hook: one host read per step, as the census's
-            names = self.method.action_names
-            for env in new.nonzero().flatten().tolist():
-                rows = [{"step": r["step"], "action": names[int(r["action"][env])],
-                         "allowed": [n for i, n in enumerate(names) if bool(r["mask"][env, i])],
-                         **{k: float(r[k][env]) for k in ("gap1", "v", "v1", "x", "y")},
-                         "r1": bool(r["r1"][env]), "lane": int(r["lane"][env]), "m": bool(r["m"][env])}
-                        for r in self._recent]
-                self.records.append({"env": env, "step": self.step - 1, "class": classify_decisions(rows),
-                                     "decisions": rows})
+
+    def _record(self, envs: list[int]) -> None:
+        names = self.method.action_names
+        for env in envs:
+            first = 0 if self._start is None else int(self._start[env])  # decisions of this episode only
+            rows = [{"step": r["step"], "action": names[int(r["action"][env])],
+                     "allowed": [n for i, n in enumerate(names) if bool(r["mask"][env, i])],
+                     **{k: float(r[k][env]) for k in ("gap1", "v", "v1", "x", "y")},
+                     "r1": bool(r["r1"][env]), "lane": int(r["lane"][env]), "m": bool(r["m"][env])}
+                    for r in self._recent if r["step"] >= first]
+            self.records.append({"env": env, "step": self.step - 1, "class": classify_decisions(rows),
+                                 "decisions": rows})
 
     def after_step(self, world, events, alive) -> None:
         """Judge this step's collisions (the records __call__ just made) against the kept states."""
+        self.keep_state(world)
+        new = events.collision & alive
+        if bool(new.any()):
+            self._judge_envs(world, new.nonzero().flatten())
+
+    def keep_state(self, world) -> None:
+        """Keep the world's positions and speeds after this step (clones on the device; no host read)."""
         s = world.state
         self._states.append((self.step - 1, s.x.clone(), s.y.clone(), s.v.clone()))
-        new = events.collision & alive
-        if not bool(new.any()):
-            return
-        envs = new.nonzero().flatten()
+
+    def _judge_envs(self, world, envs: torch.Tensor) -> None:
         by_env = {rec["env"]: rec for rec in self.records if rec["step"] == self.step - 1 and "kind" not in rec}
         for env, hit in zip(envs.tolist(), classify(world, envs)):
             rec = by_env.get(env)
             if rec is not None:
                 self._judge(rec, hit)
+
+    def episodes_restart(self, world, done: torch.Tensor) -> None:
+        """The envs where done (B,) bool were reset after this step's keep_state: their next decision starts an
+        episode (earlier ones are not its), taken in the world's state as the reset left it, which replaces
+        the kept one (the other envs' states are unchanged by the reset). Device operations only."""
+        s = world.state
+        if self._states:
+            self._states[-1] = (self._states[-1][0], s.x.clone(), s.y.clone(), s.v.clone())
+        start = self._start if self._start is not None else torch.zeros_like(done, dtype=torch.long)
+        self._start = torch.where(done, torch.full_like(start, self.step), start)
+
+    def judge_ended(self, world, collision: torch.Tensor) -> list[dict]:
+        """For a loop that reads the device only where episodes end (the trainer's compact step): after
+        keep_decision and keep_state of a step, the judged records of its collisions (collision (B,) bool),
+        handed over rather than kept. The world must still hold the colliding state (before any reset)."""
+        if not bool(collision.any()):
+            return []
+        envs = collision.nonzero().flatten()
+        first = len(self.records)
+        self._record(envs.tolist())
+        self._judge_envs(world, envs)
+        new = self.records[first:]
+        del self.records[first:]
+        return new
 
     def _judge(self, rec: dict, hit: dict) -> None:
         states = {step: (x, y, v) for step, x, y, v in self._states}

@@ -16,7 +16,9 @@ env (env b of a batch depends only on its own seed, sim.World).
 from __future__ import annotations
 
 import collections
+import contextlib
 import math
+import multiprocessing
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -26,7 +28,7 @@ from highway_srl.agents.gating import explore_gate
 from highway_srl.constants import DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, TRAFFIC_LEVELS, V_MAX_MPS
 from highway_srl.experiments.collisions import DecisionTrace
 from highway_srl.experiments.runs import check_output_folder, read_json, write_json
-from highway_srl.rules import ACTIONS, SafetyLayer, control_profile
+from highway_srl.rules import ACTIONS, FASTER, IDLE, LANE_CHANGE, SLOWER, SafetyLayer, control_profile
 from highway_srl.scenarios import check_scenario
 from highway_srl.sim import World
 
@@ -222,29 +224,36 @@ def add_counts(total: dict, part: dict) -> dict:
     return total
 
 
-def falsify(settings: FalsifySettings, out: str | Path | None = None, progress=None) -> dict:
+def falsify(settings: FalsifySettings, out: str | Path | None = None, progress=None, processes: int = 1) -> dict:
     """The breadth search of the module docstring; the report (dict). out: a folder for one case JSON per
     cause found (scene and cause deduplicated; the report lists them) and report.json.
-    progress(done, total), if given, is called after each batch."""
+    progress(done, total), if given, is called after each batch. processes: batches run in this many
+    forked worker processes of one thread each (1: in this process); a batch depends only on its
+    scene, level, mode and seed, and the results are merged in plan order, so the report is the same for
+    any count (the unit of work is a batch: --envs below --episodes gives the workers more to share)."""
     settings.check()
+    if not isinstance(processes, int) or processes < 1:
+        raise ValueError(f"processes must be a positive integer, got {processes!r}")
     if out is not None:
         check_output_folder(Path(out))
         if (Path(out) / "report.json").exists():
             raise ValueError(f"--out {str(out)!r} already holds a falsify report; choose another folder")
-    cells, kept, total = [], {}, {}
     plan = [(scene, adv, level) for scene in settings.scenes for adv in settings.modes for level in settings.levels]
-    batches = math.ceil(settings.episodes / settings.envs)
-    for i, (scene, adversarial, level) in enumerate(plan):
-        cell = {"scene": scene, "level": level, "adversarial": adversarial}
-        for start in range(0, settings.episodes, settings.envs):
-            n = min(settings.envs, settings.episodes - start)
-            counts, cases = sweep_batch(scene, level, adversarial, settings, settings.seed + start, n)
-            add_counts(cell, counts)
+    jobs = [(scene, level, adversarial, settings, settings.seed + start, min(settings.envs, settings.episodes - start))
+            for scene, adversarial, level in plan for start in range(0, settings.episodes, settings.envs)]
+    batches = len(jobs) // len(plan)
+    cells, kept, total = [], {}, {}
+    with batch_runner(processes) as run:
+        for i, (counts, cases) in enumerate(run(_sweep_job, jobs)):
+            if i % batches == 0:
+                scene, adversarial, level = plan[i // batches]
+                cells.append({"scene": scene, "level": level, "adversarial": adversarial})
+            add_counts(cells[-1], counts)
             for case in cases:
-                kept.setdefault((scene, case.cause), case)
+                kept.setdefault((cells[-1]["scene"], case.cause), case)
             if progress is not None:
-                progress(i * batches + start // settings.envs + 1, len(plan) * batches)
-        cells.append(cell)
+                progress(i + 1, len(jobs))
+    for cell in cells:
         add_counts(total, {k: v for k, v in cell.items() if k not in ("scene", "level", "adversarial")})
     report = {"settings": asdict(settings), **total,
               "ego_avoidable_rate_upper_95": rate_upper_bound(total["ego_avoidable"], total["episodes"]),
@@ -255,6 +264,26 @@ def falsify(settings: FalsifySettings, out: str | Path | None = None, progress=N
     else:
         report["cases"] = [{"cause": c.cause, "ego_avoidable": c.ego_avoidable} for c in kept.values()]
     return report
+
+
+def _sweep_job(job: tuple) -> tuple[dict, list[Case]]:
+    return sweep_batch(*job)
+
+
+@contextlib.contextmanager
+def batch_runner(processes: int):
+    """run(fn, jobs) -> fn(job) for each job, in the order of jobs: in this process, or in a pool of
+    `processes` forked workers of one torch thread each (the order of the results is the order of jobs
+    whichever worker finishes first)."""
+    if processes == 1:
+        yield lambda fn, jobs: map(fn, jobs)
+        return
+    try:
+        ctx = multiprocessing.get_context("fork")
+    except ValueError:
+        raise ValueError("--processes needs the fork start method (Linux or macOS)") from None
+    with ctx.Pool(processes, initializer=torch.set_num_threads, initargs=(1,)) as pool:
+        yield lambda fn, jobs: pool.imap(fn, jobs)
 
 
 def write_cases(folder: Path, cases: list[Case]) -> list[dict]:
@@ -280,19 +309,36 @@ def load_case(path: str | Path) -> Case:
     return case
 
 
-def replay_case(case: Case, profile: str | None = None) -> dict:
-    """Drive the case's episode again with its actions (under `profile`, default the case's own): whether
-    it collides, where, whether every action was allowed, and the decision trace's verdict."""
+# where a replaying profile forbids a recorded action: the most cautious allowed one instead
+CAUTIOUS_ORDER = (SLOWER, IDLE, LANE_CHANGE, FASTER)
+
+
+def replay_case(case: Case, profile: str | None = None, substitute: bool = False, **layer_options) -> dict:
+    """Drive the case's episode again with its actions (under `profile`, default the case's own, and the
+    SafetyLayer options given): whether it collides, where, whether every action was allowed, and the
+    decision trace's verdict. substitute: where the profile forbids the recorded action, take the first
+    allowed of CAUTIOUS_ORDER instead (how a counterexample found under one profile is put to another:
+    the ego follows the recorded plan as far as the rule layer lets it); `substituted` counts them."""
     profile = profile or case.profile
     world = World(case.scene, case.level, case.adversarial, 1, "cpu", case.seed + case.env, max_steps=case.steps,
                   adversary=case.adversary)
-    layer = SafetyLayer(world.road, profile=profile)
+    layer = SafetyLayer(world.road, profile=profile, **layer_options)
     recorded = torch.tensor(case.actions)
+    order = torch.tensor(CAUTIOUS_ORDER)
+    substituted = []
+
+    def pick(step, view):
+        action, mask = recorded[step:step + 1], view.primary.mask
+        if substitute and not bool(mask[0, action[0]]):
+            substituted.append(step)
+            return order[mask[0, order].nonzero()[0]]
+        return action
+
     trace = DecisionTrace(_AllowedActions())
-    drive(world, layer, lambda step, view: recorded[step:step + 1], trace, limit=len(case.actions))
+    drive(world, layer, pick, trace, limit=len(case.actions))
     rec = trace.records[0] if trace.records else None
     result = {"profile": profile, "collided": rec is not None, "step": None if rec is None else rec["step"],
-              "expected_step": len(case.actions) - 1}
+              "expected_step": len(case.actions) - 1, "substituted": len(substituted)}
     if rec is not None:
         result.update(cause=cause_of(rec), ego_avoidable=rec["ego_avoidable"],
                       all_allowed=all(r["action"] in r["allowed"] for r in rec["decisions"]))

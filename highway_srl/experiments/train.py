@@ -11,7 +11,8 @@ Run folder layout:
   model/             final weights (model.safetensors + meta.json), what evaluate and render load
   resume/            full state at the last checkpoint (weights, optimiser, buffers, worlds, RNG; meta.json also the
                      training log's cadence and running window and the episodes logged); removed at the end
-  metrics.json       T_c, T_r, rise time (training_metrics), wall time, steps/s (per seed and their mean)
+  metrics.json       T_c, T_r, rise time (training_metrics), wall time, steps/s (per seed and their mean); the
+                     training collisions split into ego-avoidable and unavoidable (collision_verdicts)
 """
 
 from __future__ import annotations
@@ -28,8 +29,9 @@ from highway_srl.agents.checkpoint import (
 )
 from highway_srl.agents.dqn import UpdateLog
 from highway_srl.agents.train_config import TrainConfig, check_config
-from highway_srl.agents.trainer import OPTIONAL_KEYS, Episode, Trainer
+from highway_srl.agents.trainer import OPTIONAL_KEYS, VERDICT_COLUMNS, Episode, Trainer
 from highway_srl.experiments.bench import check_train_memory
+from highway_srl.experiments.collisions import DecisionTrace
 from highway_srl.experiments.records import check_fields, read_episode_log
 from highway_srl.experiments.runs import (
     append_jsonl, check_output_folder, holds_other_files, is_int, lock_run, progress_bar, provenance,
@@ -42,6 +44,17 @@ def _episode_row(e: Episode) -> dict:
     return {"seed": e.seed, "step": e.step, "return": round(e.ret, 4), "length": e.length, "collision": e.collision,
             "avg_speed": round(e.avg_speed, 4), "success": e.success, "deploy_reward": round(e.deploy_reward, 4),
             "rm_return": round(e.rm_return, 4)}
+
+
+def collision_verdicts(trainer: Trainer) -> dict:
+    """metrics.json's split of the training collisions by the ego-avoidable verdict (rules.avoidable), per
+    seed and in all: collisions, ego_avoidable, unavoidable, not_judged (the static step reads nothing
+    back, so its collisions are not judged)."""
+    counts = trainer.verdict_counts.tolist()
+    per_seed = {str(seed): {"collisions": sum(row), **dict(zip(VERDICT_COLUMNS, row))}
+                for seed, row in zip(trainer.config.seeds, counts)}
+    total = [sum(col) for col in zip(*counts)]
+    return {"per_seed": per_seed, "all": {"collisions": sum(total), **dict(zip(VERDICT_COLUMNS, total))}}
 
 
 def _meta(cfg: TrainConfig, trainer: Trainer, code: dict) -> dict:
@@ -175,6 +188,8 @@ def _resume_logs(trainer: Trainer, out: Path, cfg: TrainConfig, drop_damaged: bo
 def _train_locked(cfg: TrainConfig, out: Path, resume: bool, checkpoint_every: int, progress: bool, code: dict,
                   drop_damaged: bool = False) -> dict:
     trainer = Trainer(cfg, drain_every=DRAIN_EVERY)
+    if not trainer.static:  # the static step reads nothing back: its collisions stay unjudged
+        trainer.collision_trace = DecisionTrace(trainer.method)
     log = out / "episodes.jsonl"
     started = time.perf_counter()
     if resume and (out / "resume").exists():
@@ -233,7 +248,8 @@ def _finish(cfg: TrainConfig, trainer: Trainer, out: Path, wall: float, code: di
                     "adversarial": cfg.adversarial, "profile": cfg.profile, "adversary": cfg.adversary,
                     "replay_ratio": cfg.replay_ratio, "env_steps_per_seed": trainer.env_steps, "seeds": list(cfg.seeds),
                     "wall_s": round(wall, 2), "env_steps_per_s": round(trainer.env_steps * len(cfg.seeds) / max(wall, 1e-9), 1),
-                    "device": str(trainer.device), "member_usage": _usage(trainer), **code})
+                    "device": str(trainer.device), "member_usage": _usage(trainer),
+                    "collision_verdicts": collision_verdicts(trainer), **code})
     write_json(out / "metrics.json", metrics)
     _remove_resume(out / "resume")
     return metrics

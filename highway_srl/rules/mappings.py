@@ -363,3 +363,14 @@ def target_speed(
     dv = torch.where(action == FASTER, torch.full_like(dv, dv_accel_mps), dv)
     dv = torch.where(action == SLOWER, torch.full_like(dv, -dv_decel_mps), dv)
     return (v_mps + dv).clamp(0.0, v_max_mps)
+
+
+def stopping_speed(v_mps: torch.Tensor, room_m: torch.Tensor, brake_mps2: float = EGO_BRAKE_MAX_MPS2,
+                   dt_s: float = DT_S) -> torch.Tensor:
+    """(B,) the target speed that brakes to a stop within room_m (B,): the constant deceleration
+    a = v² / (2 room) (Eq. 20's stopping distance solved for a) for one step, v - a dt, capped at the
+    ego's braking limit (Slower's Δv_D) and at 0; where room_m <= 0 the limit. The simulator integrates a
+    constant acceleration exactly over a step, so holding a stops the ego at the end of the room."""
+    need = v_mps * v_mps / (2.0 * room_m.clamp(min=1e-6))
+    a = torch.where(room_m > 0.0, need, torch.full_like(need, brake_mps2)).clamp(max=brake_mps2)
+    return (v_mps - a * dt_s).clamp(min=0.0)

@@ -40,6 +40,7 @@ from highway_srl.rules.mappings import (
     crossing_toward,
     near_boundary,
     rule_mapping,
+    stopping_speed,
     target_lane_local,
     target_speed,
 )
@@ -51,7 +52,7 @@ from highway_srl.rules.reward_machine import (
     highway_reward_machine,
     speed_ratio,
 )
-from highway_srl.rules.safe_actions import LANE_CHANGE, SLOWER, safe_action_mask_from
+from highway_srl.rules.safe_actions import IDLE, LANE_CHANGE, SLOWER, safe_action_mask_from
 from highway_srl.rules.safe_distance import rule_indicator
 from highway_srl.sim.road import Road
 from highway_srl.sim.snapshot import Snapshot
@@ -69,7 +70,9 @@ class ControlProfile:
     only if it ends before the road's change window closes; straddle_grouping: an ego near the boundary
     occupies both lanes (R*1 ∧ R*2, R*3 ∧ R*4); standstill_gap_m: margin taken off every bumper gap before
     the SD rule; turning_in_is_near: an SV whose body crosses the lane line while it heads toward the ego's
-    side is near it in Eq. 31 (mappings.crossing_toward). docs/paper-notes.md, "Profiles: paper vs safe",
+    side is near it in Eq. 31 (mappings.crossing_toward); last_resort_stops: Idle as Table 1's last resort
+    (R*1 = 0, so Idle is the only safe action) brakes just hard enough to stop within the room ahead
+    (mappings.stopping_speed) instead of keeping the speed. docs/paper-notes.md, "Profiles: paper vs safe",
     gives each with the crash that motivated it.
     """
 
@@ -79,13 +82,14 @@ class ControlProfile:
     straddle_grouping: bool
     standstill_gap_m: float
     turning_in_is_near: bool
+    last_resort_stops: bool
 
 
 # paper: Eqs. 31-35 as printed plus only the readings they cannot work without (holding a change under way);
 # safe: the project's additions on top, each justified by a measured crash.
 PROFILES: dict[str, ControlProfile] = {
-    "paper": ControlProfile(False, False, False, False, 0.0, False),
-    "safe": ControlProfile(True, True, True, True, STANDSTILL_GAP_M, True),
+    "paper": ControlProfile(False, False, False, False, 0.0, False, False),
+    "safe": ControlProfile(True, True, True, True, STANDSTILL_GAP_M, True, True),
 }
 
 
@@ -102,7 +106,8 @@ class ModelStep:
     ACTIONS order; rm_state (B,) long u*; r_rm (B,) RM reward; r_sv / r_star (B, 4) bool R_SVi and R*_SVi;
     m_l_ego (B,) bool; t_id (B,) long local T*_ID used for d_VL; v_star (B,) m/s; speed_ratio (B,) v/v*
     (clipped, for the deployment reward); gaps_m (B, 4) bumper gaps; vehicles: SV1..SV4 with defaults;
-    lanes: the ID mapping of this model."""
+    lanes: the ID mapping of this model; front_room_m (B,) the distance the ego may cover before it must
+    stand (front_room)."""
 
     obs: torch.Tensor
     mask: torch.Tensor
@@ -117,6 +122,7 @@ class ModelStep:
     gaps_m: torch.Tensor
     vehicles: Vehicles
     lanes: LaneModel
+    front_room_m: torch.Tensor
 
     def scoring_r_rm(self) -> torch.Tensor:
         """(B,) r_RM of the paper's mapped rules, what every method's episodes are scored with (the RM return
@@ -152,6 +158,16 @@ def straddle_grouping(r_star: torch.Tensor, m_l_ego: torch.Tensor) -> torch.Tens
     front = torch.where(m_l_ego, r_star[:, 0] & r_star[:, 1], r_star[:, 0])
     rear = torch.where(m_l_ego, r_star[:, 2] & r_star[:, 3], r_star[:, 2])
     return torch.stack([front, r_star[:, 1], rear, r_star[:, 3]], 1)
+
+
+def front_room(gaps_m: torch.Tensor, sv_vx: torch.Tensor, sv2_joins: torch.Tensor, margin_m: float,
+               sv_brake_mps2: float) -> torch.Tensor:
+    """(B,) the distance the ego may cover before it must stand: up to the point where the front vehicle
+    would stand if it braked at its limit now (Eq. 20's stopping distance v_SV² / 2|a_SV| beyond its bumper
+    gap), less the standstill margin; the nearer of SV1 and SV2 where sv2_joins (B,) (Eq. 32 or the
+    straddle grouping makes R*1 answer for SV2 too). gaps_m, sv_vx (B, 4) as in ModelStep."""
+    room = gaps_m[:, :2] - margin_m + sv_vx[:, :2].clamp(min=0.0) ** 2 / (2.0 * sv_brake_mps2)
+    return torch.where(sv2_joins, room.min(1).values, room[:, 0])
 
 
 def where_tree(pick: torch.Tensor, a, b):
@@ -205,6 +221,7 @@ class SafetyLayer:
         standstill_gap_m: float | None = None,
         straddle_grouping: bool | None = None,
         turning_in_is_near: bool | None = None,
+        last_resort_stops: bool | None = None,
         reaction_s: float = DT_S,
         ego_brake_mps2: float = EGO_BRAKE_MAX_MPS2,
         sv_brake_mps2: float = SV_BRAKE_MAX_MPS2,
@@ -224,6 +241,7 @@ class SafetyLayer:
         self.standstill_gap_m = pick(standstill_gap_m, prof.standstill_gap_m)
         self.straddle_grouping = pick(straddle_grouping, prof.straddle_grouping)
         self.turning_in_is_near = pick(turning_in_is_near, prof.turning_in_is_near)
+        self.last_resort_stops = pick(last_resort_stops, prof.last_resort_stops)
         self.reaction_s, self.ego_brake, self.sv_brake = reaction_s, ego_brake_mps2, sv_brake_mps2
         self.rm = highway_reward_machine()
         self.target_lane: torch.Tensor | None = None  # (B,) long global T*; -1: not yet known
@@ -320,6 +338,10 @@ class SafetyLayer:
         _, r_star = rule_mapping(r_sv, m_l_ego, m_l_sv, dx, eps_s_m=self.eps_s_m, grouped=self.grouped)
         if self.straddle_grouping:
             r_star = straddle_grouping(r_star, m_l_ego)
+        sv2_joins = (m_l_sv[:, 0] | m_l_sv[:, 1]) if self.grouped else m_l_sv[:, 0]
+        if self.straddle_grouping:
+            sv2_joins = sv2_joins | m_l_ego
+        room = front_room(gaps, veh.vx, sv2_joins, self.standstill_gap_m, self.sv_brake)
         mask = safe_action_mask_from(r_star)
         t_id = (target_global - lanes.base_lane).clamp(0, 1)
         d_vl = (ego_y_local - t_id.to(ego_x.dtype) * w).abs()
@@ -347,7 +369,7 @@ class SafetyLayer:
             lane_width_m=w,
         )
         return ModelStep(obs, mask, u, r_rm, r_sv, r_star, m_l_ego, t_id, v_star, speed_ratio(ego_vx, v_star),
-                         gaps, veh, lanes)
+                         gaps, veh, lanes, room)
 
     # ------------------------------------------------------------------ act
     def act(self, action: torch.Tensor, use_second: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -392,4 +414,10 @@ class SafetyLayer:
         if self.brake_while_changing:
             brake = (action == LANE_CHANGE) & ~m.r_star[:, 0]
             speed = torch.where(brake, target_speed(torch.full_like(action, SLOWER), speed_now, check=False), speed)
+        # Table 1 leaves Idle alone where R*1 = R*3 = 0 and no lane change is safe; keeping the speed drove the
+        # ego into standing queues. The front comes first (RSS: the follower answers for the rear gap), braking
+        # no harder than stopping within the room ahead needs (docs/paper-notes.md).
+        if self.last_resort_stops:
+            last = (action == IDLE) & ~m.r_star[:, 0]
+            speed = torch.where(last, stopping_speed(speed_now, m.front_room_m, self.ego_brake), speed)
         return lane, speed

@@ -1,7 +1,7 @@
 """Control profiles of the SafetyLayer (docs/paper-notes.md, "Profiles: paper vs safe").
 
 `paper` = Eqs. 31-35 as printed plus the hold of a lane change under way; `safe` = today's behaviour with
-our six additions. One crafted situation per addition where the two profiles differ exactly as documented,
+our seven additions. One crafted situation per addition where the two profiles differ exactly as documented,
 and a golden test of Eqs. 31-35 under `paper`.
 """
 
@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from highway_srl.rules import PROFILES, RM_STATES, SafetyLayer, control_profile
+from highway_srl.rules.mappings import stopping_speed
 from highway_srl.rules.raw import RawSafetyLayer
 from highway_srl.rules.safe_actions import FASTER, IDLE, LANE_CHANGE, SLOWER
 from highway_srl.sim.road import make_road
@@ -24,10 +25,12 @@ def test_safe_is_the_default_profile_and_equals_the_previous_defaults():
     layer = SafetyLayer(make_road("two-lane"))
     assert layer.profile == "safe"
     assert (layer.abort_unsafe_change, layer.brake_while_changing, layer.finish_in_window, layer.straddle_grouping,
-            layer.standstill_gap_m, layer.turning_in_is_near) == (True, True, True, True, 1.0, True)
+            layer.standstill_gap_m, layer.turning_in_is_near, layer.last_resort_stops) == (True, True, True, True, 1.0,
+                                                                                           True, True)
     paper = SafetyLayer(make_road("two-lane"), profile="paper")
     assert (paper.abort_unsafe_change, paper.brake_while_changing, paper.finish_in_window, paper.straddle_grouping,
-            paper.standstill_gap_m, paper.turning_in_is_near) == (False, False, False, False, 0.0, False)
+            paper.standstill_gap_m, paper.turning_in_is_near, paper.last_resort_stops) == (False, False, False, False,
+                                                                                           0.0, False, False)
     assert paper.hold_lane_change and layer.hold_lane_change  # both hold a change under way
     assert set(PROFILES) == {"paper", "safe"}
 
@@ -125,6 +128,41 @@ def test_an_sv_turning_in_steeply_ahead_counts_as_near_the_boundary_only_under_s
         p = layer.observe(hand_world(road, scene)).primary
         assert p.r_sv[0, :2].tolist() == [True, False], name
         assert p.mask[0, FASTER].item() is (name == "paper"), name
+
+
+def test_idle_as_the_last_resort_brakes_to_stand_within_the_room_ahead_only_under_safe(hand_world):
+    """last_resort_stops: a follower 1 m behind at 4 m/s (R*3 = 0) and a car standing 1 m ahead in the other
+    lane (R*2 = 0) leave Idle as Table 1's only action wherever R*1 = 0. Golden from Eq. 20 solved for the
+    deceleration, a = v² / 2 room, room = bumper gap - 1 m margin + v_SV1² / (2 x 6), capped at 6 m/s²:
+      ego 2.5 behind a standing car, gap 1.7: room 0.7, a = 4.4643, 2.5 - a δt = 1.941964;
+      ego 2.5 behind a standing car, gap 1.2: room 0.2, a = 15.6 -> 6, Slower's 1.75;
+      ego 6 behind a car at 6 m/s, gap 1.2: room 0.2 + 3 = 3.2, a = 5.625, 5.296875;
+      ego standing, gap 0.5: room < 0, stays at 0.
+    paper (and safe with the addition off) keeps the speed, Eq. 34 as printed."""
+    road = make_road("two-lane")
+    rows = [(2.5, 1.7, 0.0, 1.941964), (2.5, 1.2, 0.0, 1.75), (6.0, 1.2, 6.0, 5.296875), (0.0, 0.5, 0.0, 0.0)]
+    scenes = [{"ego": (0.0, 0.0, v, 0.0), "svs": [(5.0 + gap, 0.0, v1, 0.0), (-6.0, 0.0, 4.0, 0.0), (6.0, W, 0.0, 0.0)]}
+              for v, gap, v1, _ in rows]
+    idle = torch.full((len(rows),), IDLE)
+    for layer in (SafetyLayer(road, profile="safe"), SafetyLayer(road, profile="safe", last_resort_stops=False)):
+        p = layer.observe(hand_world(road, scenes)).primary
+        assert p.mask.tolist() == [[False, True, False, False]] * len(rows)  # Idle alone
+        expected = [r[3] for r in rows] if layer.last_resort_stops else [r[0] for r in rows]
+        assert layer.act(idle)[1].tolist() == pytest.approx(expected, abs=1e-5)
+    paper = SafetyLayer(road, profile="paper")
+    paper.observe(hand_world(road, scenes))
+    assert paper.act(idle)[1].tolist() == pytest.approx([r[0] for r in rows])
+
+
+def test_stopping_speed_holds_the_deceleration_that_ends_at_the_room():
+    """mappings.stopping_speed: v - a δt with a = v² / (2 room); driven at that a the ego covers exactly room
+    (v² / 2a); the limit (Slower) where that needs more than 6 m/s² or no room is left."""
+    v = torch.tensor([4.0, 4.0, 4.0, 0.0])
+    room = torch.tensor([2.0, 1.0, -0.5, 0.0])
+    speed = stopping_speed(v, room)
+    a = (v - speed) / 0.125
+    assert speed.tolist() == pytest.approx([3.5, 3.25, 3.25, 0.0])
+    assert float(v[0] ** 2 / (2 * a[0])) == pytest.approx(2.0)
 
 
 # ----------------------------------------------------------------------------- Eqs. 31-35 golden, paper
