@@ -1,7 +1,8 @@
 """The one entry point: `highway-srl <command>`.
 
 Every user error (unknown name, out-of-range number, missing or mismatched run folder) ends as one line
-on stderr and exit status 2, never a traceback.
+on stderr and exit status 2, never a traceback; Ctrl-C as "highway-srl: interrupted" and exit status 130,
+`kill` as "highway-srl: terminated" and 143.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from pathlib import Path
 
 from highway_srl import __version__
 from highway_srl.constants import SCENARIOS, TRAFFIC_LEVELS
+from highway_srl.interrupts import stop_reason, terminations_raised
 
 
 class Parser(argparse.ArgumentParser):
@@ -161,6 +163,16 @@ def set_threads(requested: int | None) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    try:
+        with terminations_raised():  # `kill` ends the command as Ctrl-C does, with its own word and status
+            return _run(argv)
+    except KeyboardInterrupt as err:  # at any moment, parsing included; workers stay quiet (interrupts.py)
+        word, code = stop_reason(err)
+        print(f"highway-srl: {word}", file=sys.stderr)
+        return code
+
+
+def _run(argv: list[str] | None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -169,9 +181,6 @@ def main(argv: list[str] | None = None) -> int:
     try:
         set_threads(args.threads)
         return args.func(args)
-    except KeyboardInterrupt:
-        print("highway-srl: interrupted", file=sys.stderr)
-        return 130
     except (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError,
             PermissionError) as err:  # user errors: one line, no traceback
         print(f"highway-srl: error: {err}", file=sys.stderr)

@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 from highway_srl.constants import DEFAULT_ADVERSARY, DEFAULT_PROFILE, TRAFFIC_LEVELS
+from highway_srl.interrupts import stop_reason
 from highway_srl.scenarios import check_scenario
 
 
@@ -179,12 +180,13 @@ def _cmd_train(args) -> int:
     try:
         metrics = train_run(cfg, out, resume=args.resume, checkpoint_every=args.checkpoint_every,
                             progress=not args.quiet, drop_damaged=args.drop_damaged)
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as err:  # Ctrl-C or kill: say where a resume would continue
+        word, code = stop_reason(err)
         step = last_checkpoint_step(out)
         where = f"its last checkpoint (step {step:,})" if step is not None else "step 0 (no checkpoint was written yet)"
-        print(f"highway-srl: interrupted; continue from {where} with: highway-srl train --resume --out {args.out}",
+        print(f"highway-srl: {word}; continue from {where} with: highway-srl train --resume --out {args.out}",
               file=sys.stderr)
-        return 130
+        return code
     m = metrics["mean"]
     tc = "n/a" if m["T_c"] is None else f"{m['T_c']:.3f}"
     tr = "n/a" if m["T_r"] is None else f"{m['T_r']:.1f}"
