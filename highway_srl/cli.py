@@ -1,7 +1,8 @@
 """The one entry point: `highway-srl <command>`.
 
 Every user error (unknown name, out-of-range number, missing or mismatched run folder) ends as one line
-on stderr and exit status 2, never a traceback; Ctrl-C as "highway-srl: interrupted" and exit status 130,
+on stderr and exit status 2, never a traceback; a file that cannot be written (a full disk) is one line
+naming it and exit status 1; Ctrl-C as "highway-srl: interrupted" and exit status 130,
 `kill` as "highway-srl: terminated" and 143.
 """
 
@@ -10,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import threading
 from pathlib import Path
 
 from highway_srl import __version__
@@ -162,7 +164,15 @@ def set_threads(requested: int | None) -> int:
     return threads
 
 
+def _thread_error(args) -> None:
+    """threading.excepthook: a thread that keeps its error for its owner to raise (TensorBoard's writer does,
+    on a full disk) says nothing; the owner's next call fails with it and the command reports it in one line."""
+    if getattr(args.thread, "exception", None) is not args.exc_value:
+        threading.__excepthook__(args)
+
+
 def main(argv: list[str] | None = None) -> int:
+    threading.excepthook = _thread_error
     try:
         with terminations_raised():  # `kill` ends the command as Ctrl-C does, with its own word and status
             return _run(argv)
@@ -185,6 +195,10 @@ def _run(argv: list[str] | None) -> int:
             PermissionError) as err:  # user errors: one line, no traceback
         print(f"highway-srl: error: {err}", file=sys.stderr)
         return 2
+    except OSError as err:  # the machine, not the command line (a full disk, a failing device): status 1
+        where = f"{err.filename}: " if err.filename else ""
+        print(f"highway-srl: error: {where}{err.strerror or err}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -12,14 +12,17 @@ import tomllib
 from pathlib import Path
 
 from highway_srl import __version__
-from highway_srl.agents.checkpoint import write_atomic
+from highway_srl.agents.checkpoint import naming, write_atomic
 from highway_srl.agents.trainer import TrainConfig
 
 
 def _git(folder: Path, *args: str) -> str | None:
-    """git's output in folder (stripped), None if git is missing, fails or the folder is no checkout."""
+    """git's output in folder (stripped), None if git is missing, fails or the folder is no checkout.
+    GIT_OPTIONAL_LOCKS=0: `git status` reads the checkout without refreshing its index, so it never takes
+    index.lock (which a git command of the user's would then find, and which a full disk would leave)."""
+    env = {**os.environ, "GIT_OPTIONAL_LOCKS": "0"}
     try:
-        out = subprocess.run(["git", "-C", str(folder), *args], capture_output=True, text=True, timeout=5)
+        out = subprocess.run(["git", "-C", str(folder), *args], capture_output=True, text=True, timeout=5, env=env)
     except (OSError, subprocess.SubprocessError):
         return None
     return out.stdout.strip() if out.returncode == 0 else None
@@ -259,10 +262,29 @@ def progress_bar(total: int, desc: str, unit: str = "step", enabled: bool = True
     return tqdm(total=total, initial=initial, desc=desc, unit=unit, dynamic_ncols=True, mininterval=0.5, miniters=1)
 
 
+class Named:
+    """obj, whose method calls name `path` in the OSErrors they raise (checkpoint.naming): a TensorBoard
+    writer, whose full disk names no file."""
+
+    def __init__(self, obj, path: Path):
+        self.obj, self.path = obj, path
+
+    def __getattr__(self, name: str):
+        attr = getattr(self.obj, name)
+        if not callable(attr):
+            return attr
+
+        def call(*args, **kwargs):
+            with naming(self.path):
+                return attr(*args, **kwargs)
+
+        return call
+
+
 def append_jsonl(path: Path, rows: list[dict]) -> None:
     if not rows:
         return
-    with open(path, "a") as f:
+    with naming(path), open(path, "a") as f:
         for row in rows:
             f.write(json.dumps(row) + "\n")
         f.flush()

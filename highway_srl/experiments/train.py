@@ -24,15 +24,16 @@ from pathlib import Path
 import torch
 
 from highway_srl.agents.checkpoint import (
-    MODEL_FILE, CheckpointError, first_non_finite, load_checkpoint, policy_tensors, save_checkpoint, write_atomic,
+    MODEL_FILE, CheckpointError, first_non_finite, load_checkpoint, naming, policy_tensors, save_checkpoint,
+    write_atomic,
 )
 from highway_srl.agents.dqn import UpdateLog
 from highway_srl.agents.trainer import OPTIONAL_KEYS, Episode, Trainer, TrainConfig, check_config
 from highway_srl.experiments.bench import check_train_memory
 from highway_srl.experiments.records import check_fields, read_episode_log, scalar_rows
 from highway_srl.experiments.runs import (
-    append_jsonl, check_output_folder, holds_other_files, is_finite_number, is_int, lock_run, progress_bar, provenance,
-    read_json, run_config, train_config, write_json, write_jsonl,
+    Named, append_jsonl, check_output_folder, holds_other_files, is_finite_number, is_int, lock_run, progress_bar,
+    provenance, read_json, run_config, train_config, write_json, write_jsonl,
 )
 
 SMOOTH_EPISODES = 20
@@ -228,7 +229,7 @@ class TrainingLog:
         values["lr"] = trainer.config.dqn.lr
         values["updates"] = int(trainer.learner.adam_step.double().sum())  # float32 counts, exact per member
         self.ended, self.step, self.time, self.usage = 0, step, now, usage
-        with open(self.path, "a") as f:
+        with naming(self.path), open(self.path, "a") as f:  # a full disk names the file
             f.write(",".join([str(step)] + [_cell(k, values[k]) if k in values else "" for k in self.columns[1:]]) + "\n")
         if self.tb is not None:
             for k, v in values.items():
@@ -275,8 +276,11 @@ def tensorboard_writers(folder: Path, seeds, keep_until: int | None) -> tuple:
               "pip install tensorboard for it", file=sys.stderr)
         return None, {}
     purge = None if keep_until is None else keep_until + 1
-    return (SummaryWriter(str(folder / "all-seeds"), purge_step=purge),
-            {seed: SummaryWriter(str(folder / f"seed-{seed}"), purge_step=purge) for seed in seeds})
+
+    def writer(name: str):  # its OSErrors (a full disk) name its folder
+        return Named(SummaryWriter(str(folder / name), purge_step=purge), folder / name)
+
+    return writer("all-seeds"), {seed: writer(f"seed-{seed}") for seed in seeds}
 
 
 def finished(out: Path) -> bool:
