@@ -111,9 +111,13 @@ def open_state(root: Path, name: str, what: str) -> dict | None:
     path = root / name
     if path.exists():
         try:
-            return read_json(path)
+            state = read_json(path)
         except ValueError as err:
-            raise ValueError(f"{path} is damaged ({err}); move it away to start afresh") from None
+            raise ValueError(f"{err}; move it away to start afresh") from None  # err names the file
+        if not isinstance(state, dict):  # a null would read as a new study and be written over
+            raise ValueError(f"{path} is damaged (not a JSON object: {json.dumps(state)[:40]}); move it away "
+                             "to start afresh")
+        return state
     if root.exists() and (not root.is_dir() or holds_other_files(root)):
         raise ValueError(f"--out {str(root)!r} exists and holds no {what} ({name}); choose an empty or new folder")
     return None
