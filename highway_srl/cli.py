@@ -27,7 +27,7 @@ class Parser(argparse.ArgumentParser):
 
 
 def _scenario(p: argparse.ArgumentParser, default: str | None = "two-lane") -> None:
-    from highway_srl.commands import level
+    from highway_srl.commands.arguments import level
 
     p.add_argument("--scenario", default=default, help=f"one of {', '.join(SCENARIOS)}")
     p.add_argument("--traffic", type=level, default="C", help=f"traffic level, one of {', '.join(TRAFFIC_LEVELS)}")
@@ -103,7 +103,7 @@ def _cmd_bench(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from highway_srl import commands  # the training / evaluation / study commands, argument types
-    from highway_srl.commands import adversary_name, positive, profile_name, seed_number
+    from highway_srl.commands.arguments import adversary_name, positive, profile_name, seed_number, step_form_args
 
     parser = Parser(prog="highway-srl", description="Safe RL of autonomous highway driving (MoE-RM-SRL).")
     parser.add_argument("--version", action="version", version=f"highway-srl {__version__}")
@@ -135,7 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="processes stepping the world's envs, this one and P - 1 workers, one thread each "
                         "(bench sim, CPU)")
     p.add_argument("--device", default="cpu")
-    commands.step_form_args(p)
+    step_form_args(p)
     p.add_argument("--json", action="store_true")
     p.add_argument("--contended", action="store_true",
                    help="measure idle, then beside a busy process on every core, and report both")
