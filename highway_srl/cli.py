@@ -1,7 +1,9 @@
 """The one entry point: `highway-srl <command>`.
 
 Every user error (unknown name, out-of-range number, missing or mismatched run folder) ends as one line
-on stderr and exit status 2, never a traceback.
+on stderr and exit status 2, never a traceback; a file that cannot be written (a full disk) is one line
+naming it and exit status 1; Ctrl-C as "highway-srl: interrupted" and exit status 130,
+`kill` as "highway-srl: terminated" and 143.
 """
 
 from __future__ import annotations
@@ -9,10 +11,12 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import threading
 from pathlib import Path
 
 from highway_srl import __version__
 from highway_srl.constants import SCENARIOS, TRAFFIC_LEVELS
+from highway_srl.interrupts import stop_reason, terminations_raised
 
 
 class Parser(argparse.ArgumentParser):
@@ -23,7 +27,7 @@ class Parser(argparse.ArgumentParser):
 
 
 def _scenario(p: argparse.ArgumentParser, default: str | None = "two-lane") -> None:
-    from highway_srl.commands import level
+    from highway_srl.commands.arguments import level
 
     p.add_argument("--scenario", default=default, help=f"one of {', '.join(SCENARIOS)}")
     p.add_argument("--traffic", type=level, default="C", help=f"traffic level, one of {', '.join(TRAFFIC_LEVELS)}")
@@ -99,7 +103,7 @@ def _cmd_bench(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from highway_srl import commands  # the training / evaluation / study commands, argument types
-    from highway_srl.commands import adversary_name, positive, profile_name, seed_number
+    from highway_srl.commands.arguments import adversary_name, positive, profile_name, seed_number, step_form_args
 
     parser = Parser(prog="highway-srl", description="Safe RL of autonomous highway driving (MoE-RM-SRL).")
     parser.add_argument("--version", action="version", version=f"highway-srl {__version__}")
@@ -131,7 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="processes stepping the world's envs, this one and P - 1 workers, one thread each "
                         "(bench sim, CPU)")
     p.add_argument("--device", default="cpu")
-    commands.step_form_args(p)
+    step_form_args(p)
     p.add_argument("--json", action="store_true")
     p.add_argument("--contended", action="store_true",
                    help="measure idle, then beside a busy process on every core, and report both")
@@ -160,7 +164,25 @@ def set_threads(requested: int | None) -> int:
     return threads
 
 
+def _thread_error(args) -> None:
+    """threading.excepthook: a thread that keeps its error for its owner to raise (TensorBoard's writer does,
+    on a full disk) says nothing; the owner's next call fails with it and the command reports it in one line."""
+    if getattr(args.thread, "exception", None) is not args.exc_value:
+        threading.__excepthook__(args)
+
+
 def main(argv: list[str] | None = None) -> int:
+    threading.excepthook = _thread_error
+    try:
+        with terminations_raised():  # `kill` ends the command as Ctrl-C does, with its own word and status
+            return _run(argv)
+    except KeyboardInterrupt as err:  # at any moment, parsing included; workers stay quiet (interrupts.py)
+        word, code = stop_reason(err)
+        print(f"highway-srl: {word}", file=sys.stderr)
+        return code
+
+
+def _run(argv: list[str] | None) -> int:
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -169,13 +191,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         set_threads(args.threads)
         return args.func(args)
-    except KeyboardInterrupt:
-        print("highway-srl: interrupted", file=sys.stderr)
-        return 130
     except (ValueError, FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError,
             PermissionError) as err:  # user errors: one line, no traceback
         print(f"highway-srl: error: {err}", file=sys.stderr)
         return 2
+    except OSError as err:  # the machine, not the command line (a full disk, a failing device): status 1
+        where = f"{err.filename}: " if err.filename else ""
+        print(f"highway-srl: error: {where}{err.strerror or err}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

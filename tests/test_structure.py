@@ -12,8 +12,8 @@ PACKAGE = Path(highway_srl.__file__).parent
 # lower number = lower layer; a module may import only from its own layer or below. The root package
 # (highway_srl/__init__.py) is the public facade: it may import any layer lazily, and others take only
 # __version__ from it.
-LAYERS = {"constants": 0, "scenarios": 0, "sim": 1, "rules": 2, "backends": 2, "env": 3, "agents": 3, "sb3": 4,
-          "experiments": 4, "study": 5, "commands": 6, "cli": 7}
+LAYERS = {"constants": 0, "scenarios": 0, "interrupts": 0, "sim": 1, "rules": 2, "backends": 2, "env": 3, "agents": 3,
+          "sb3": 4, "experiments": 4, "study": 5, "commands": 6, "cli": 7}
 
 
 def _modules() -> dict[str, Path]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -46,18 +47,31 @@ def write_atomic(path: Path, data: bytes, replace: bool = True) -> None:
     0600 would hide results from colleagues on a shared machine. replace=False: never over a file that
     exists (publish), a FileExistsError instead.
     """
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    with naming(path):
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        try:
+            os.fchmod(fd, 0o666 & ~_umask())
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+            publish(Path(tmp), path, replace)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+
+
+@contextmanager
+def naming(path: Path):
+    """An OSError in the block (a full disk, a size limit, no permission) names `path`, the file being
+    written: not a temporary name, and not nothing (a write() that fails names no file)."""
     try:
-        os.fchmod(fd, 0o666 & ~_umask())
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        publish(Path(tmp), path, replace)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+        yield
+    except OSError as err:
+        if err.errno is None:  # raised with its own message (publish's FileExistsError): keep it
+            raise
+        raise OSError(err.errno, err.strerror, str(path)) from None
 
 
 def temp_beside(path: Path) -> Path:

@@ -10,6 +10,7 @@ import time
 import torch
 
 from highway_srl.constants import DT_S
+from highway_srl.interrupts import held, quiet_worker
 from highway_srl.sim import World, allocator
 
 
@@ -147,6 +148,7 @@ def bench_sim(scenario: str, traffic: str, envs: int, steps: int, device: str, a
 
 
 def _spin() -> None:
+    quiet_worker()  # Ctrl-C is the bench's to report; it ends the spinners itself
     while True:
         pass
 
@@ -160,10 +162,12 @@ def contended(measure, neighbours: int | None = None) -> dict:
     n = neighbours if neighbours is not None else (os.cpu_count() or 1)
     idle = measure()
     ctx = multiprocessing.get_context("spawn")  # a fork would copy torch's thread pools into the spinners
-    spinners = [ctx.Process(target=_spin, daemon=True) for _ in range(n)]
-    for p in spinners:
-        p.start()
+    spinners = []
     try:
+        with held():  # the spinners start deaf to Ctrl-C (highway_srl/interrupts.py)
+            for _ in range(n):
+                spinners.append(ctx.Process(target=_spin, daemon=True))
+                spinners[-1].start()
         time.sleep(0.5)  # let them be scheduled before the clock starts
         busy = measure()
     finally:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 
-from highway_srl.agents.checkpoint import publish, temp_beside
+from highway_srl.agents.checkpoint import naming, publish, temp_beside
 from highway_srl.constants import DEFAULT_ADVERSARY
 from highway_srl.sim import World
 from highway_srl.sim.policies import idm_ego
@@ -19,7 +19,8 @@ def drawn(path: Path, draw, overwrite: bool = True) -> Path:
     full disk or an interrupt leaves the file that was there, never a truncated one."""
     tmp = temp_beside(path)
     try:
-        draw(tmp)
+        with naming(path):
+            draw(tmp)
         publish(tmp, path, overwrite)
     finally:
         tmp.unlink(missing_ok=True)

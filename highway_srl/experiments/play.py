@@ -165,13 +165,13 @@ def play(
     layer = RawSafetyLayer(world.road, five_actions=True, hold_lane_change=True)
     config = {"method": "manual", "scenario": scenario, "traffic": traffic, "adversarial": adversarial,
               "seeds": [seed], "episodes": episodes, "decision_hz": fps}
-    out.mkdir(parents=True, exist_ok=True)
-    write_json(out / "config.json", {"config": config, **provenance()})
-    log = out / "episodes.jsonl"
-    log.touch()
-    pygame.display.init()  # no audio: pygame.init() would open a sound device
-    pygame.font.init()
+    open_display(pygame, wait_for_key)  # before the run folder: a refusal leaves nothing behind
     try:
+        out.mkdir(parents=True, exist_ok=True)
+        write_json(out / "config.json", {"config": config, **provenance()})
+        log = out / "episodes.jsonl"
+        log.touch()
+        pygame.font.init()
         screen = Screen(pygame, world.road)
         keys = Keys(pygame)
         clock = pygame.time.Clock()
@@ -192,6 +192,24 @@ def play(
         pygame.quit()
     rows = read_jsonl(log)
     return write_manual_metrics(out, config, rows)
+
+
+KEYLESS_DRIVERS = ("dummy", "offscreen")  # SDL video drivers that draw nowhere and read no keys
+
+
+def open_display(pygame, wait_for_key: bool) -> None:
+    """pygame's display (no audio: pygame.init() would open a sound device), or a one-line ValueError where
+    SDL has no display, or only a driver that reads no keys (dummy, offscreen: SDL falls back to offscreen
+    when DISPLAY names no running server), on which waiting for the first key press would wait forever."""
+    try:
+        pygame.display.init()
+    except pygame.error as err:
+        raise ValueError(f"play cannot open a window: {err}") from None
+    driver = pygame.display.get_driver()
+    if wait_for_key and driver in KEYLESS_DRIVERS:
+        pygame.quit()
+        raise ValueError(f"play needs a window that takes key presses, and SDL's video driver {driver!r} has "
+                         "none (SDL_VIDEODRIVER set so, or DISPLAY names no running X server)")
 
 
 def _wait_for_start(pygame, screen, world, ep: int, episodes: int) -> bool:

@@ -12,14 +12,17 @@ import tomllib
 from pathlib import Path
 
 from highway_srl import __version__
-from highway_srl.agents.checkpoint import write_atomic
+from highway_srl.agents.checkpoint import naming, write_atomic
 from highway_srl.agents.train_config import TrainConfig
 
 
 def _git(folder: Path, *args: str) -> str | None:
-    """git's output in folder (stripped), None if git is missing, fails or the folder is no checkout."""
+    """git's output in folder (stripped), None if git is missing, fails or the folder is no checkout.
+    GIT_OPTIONAL_LOCKS=0: `git status` reads the checkout without refreshing its index, so it never takes
+    index.lock (which a git command of the user's would then find, and which a full disk would leave)."""
+    env = {**os.environ, "GIT_OPTIONAL_LOCKS": "0"}
     try:
-        out = subprocess.run(["git", "-C", str(folder), *args], capture_output=True, text=True, timeout=5)
+        out = subprocess.run(["git", "-C", str(folder), *args], capture_output=True, text=True, timeout=5, env=env)
     except (OSError, subprocess.SubprocessError):
         return None
     return out.stdout.strip() if out.returncode == 0 else None
@@ -108,9 +111,13 @@ def open_state(root: Path, name: str, what: str) -> dict | None:
     path = root / name
     if path.exists():
         try:
-            return read_json(path)
+            state = read_json(path)
         except ValueError as err:
-            raise ValueError(f"{path} is damaged ({err}); move it away to start afresh") from None
+            raise ValueError(f"{err}; move it away to start afresh") from None  # err names the file
+        if not isinstance(state, dict):  # a null would read as a new study and be written over
+            raise ValueError(f"{path} is damaged (not a JSON object: {json.dumps(state)[:40]}); move it away "
+                             "to start afresh")
+        return state
     if root.exists() and (not root.is_dir() or holds_other_files(root)):
         raise ValueError(f"--out {str(root)!r} exists and holds no {what} ({name}); choose an empty or new folder")
     return None
@@ -259,10 +266,29 @@ def progress_bar(total: int, desc: str, unit: str = "step", enabled: bool = True
     return tqdm(total=total, initial=initial, desc=desc, unit=unit, dynamic_ncols=True, mininterval=0.5, miniters=1)
 
 
+class Named:
+    """obj, whose method calls name `path` in the OSErrors they raise (checkpoint.naming): a TensorBoard
+    writer, whose full disk names no file."""
+
+    def __init__(self, obj, path: Path):
+        self.obj, self.path = obj, path
+
+    def __getattr__(self, name: str):
+        attr = getattr(self.obj, name)
+        if not callable(attr):
+            return attr
+
+        def call(*args, **kwargs):
+            with naming(self.path):
+                return attr(*args, **kwargs)
+
+        return call
+
+
 def append_jsonl(path: Path, rows: list[dict]) -> None:
     if not rows:
         return
-    with open(path, "a") as f:
+    with naming(path), open(path, "a") as f:
         for row in rows:
             f.write(json.dumps(row) + "\n")
         f.flush()

@@ -8,11 +8,11 @@ from pathlib import Path
 
 import torch
 
-from highway_srl.agents.checkpoint import write_atomic
+from highway_srl.agents.checkpoint import naming, write_atomic
 from highway_srl.agents.dqn import UpdateLog
 from highway_srl.agents.trainer import Episode, Trainer
 from highway_srl.experiments.records import check_fields, scalar_rows
-from highway_srl.experiments.runs import is_finite_number, is_int
+from highway_srl.experiments.runs import Named, is_finite_number, is_int
 
 LOG_EVERY = 2000  # env steps per seed between two rows of scalars.csv (and TensorBoard points)
 RECENT_EPISODES = 100  # mean_return and collision_free are over the last this many episodes
@@ -133,7 +133,7 @@ class TrainingLog:
         values["lr"] = trainer.config.dqn.lr
         values["updates"] = int(trainer.learner.adam_step.double().sum())  # float32 counts, exact per member
         self.ended, self.step, self.time, self.usage = 0, step, now, usage
-        with open(self.path, "a") as f:
+        with naming(self.path), open(self.path, "a") as f:  # a full disk names the file
             f.write(",".join([str(step)] + [_cell(k, values[k]) if k in values else "" for k in self.columns[1:]]) + "\n")
         if self.tb is not None:
             for k, v in values.items():
@@ -180,8 +180,11 @@ def tensorboard_writers(folder: Path, seeds, keep_until: int | None) -> tuple:
               "pip install tensorboard for it", file=sys.stderr)
         return None, {}
     purge = None if keep_until is None else keep_until + 1
-    return (SummaryWriter(str(folder / "all-seeds"), purge_step=purge),
-            {seed: SummaryWriter(str(folder / f"seed-{seed}"), purge_step=purge) for seed in seeds})
+
+    def writer(name: str):  # its OSErrors (a full disk) name its folder
+        return Named(SummaryWriter(str(folder / name), purge_step=purge), folder / name)
+
+    return writer("all-seeds"), {seed: writer(f"seed-{seed}") for seed in seeds}
 
 
 def usage_tags(shares: dict[str, float]) -> dict[str, float]:

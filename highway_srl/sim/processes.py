@@ -31,6 +31,8 @@ import weakref
 
 import torch
 
+from highway_srl.interrupts import held, quiet_worker
+
 SPIN_S = 0.002  # seconds a waiting process polls before it blocks (see above)
 
 
@@ -73,7 +75,8 @@ class WorldProcesses:
             # the child closes the parents' ends it inherits, so that it sees the parent go
             proc = ctx.Process(target=_serve, args=(child_end, [*self.conns, parent_end], world.envs_view(lo, hi),
                                                     lo, hi, self), daemon=True, name=f"highway-srl world {lo}:{hi}")
-            proc.start()
+            with held():  # Ctrl-C is this process's to report: the worker starts deaf to it (interrupts.py)
+                proc.start()
             child_end.close()
             self.conns.append(parent_end)
             self.procs.append(proc)
@@ -146,6 +149,7 @@ def _stop(conns, procs) -> None:
 
 
 def _serve(conn, inherited, view, lo: int, hi: int, bufs: WorldProcesses) -> None:
+    quiet_worker()  # Ctrl-C ignored: the parent reports it and closes this worker (call, close)
     # first of all: a forked child that runs an OpenMP region with the parent's thread count can hang in
     # libgomp (its pool belongs to the parent); one thread per process is the point of the processes anyway
     torch.set_num_threads(1)
@@ -164,7 +168,11 @@ def _serve(conn, inherited, view, lo: int, hi: int, bufs: WorldProcesses) -> Non
         if message is None:
             return
         op, settings = message
-        conn.send(_run(view, lo, hi, bufs, op, settings))
+        reply = _run(view, lo, hi, bufs, op, settings)
+        try:
+            conn.send(reply)
+        except OSError:  # the parent closed this world meanwhile (Ctrl-C): nobody waits for the reply
+            return
 
 
 def _spin(conn) -> None:

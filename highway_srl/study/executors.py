@@ -4,6 +4,7 @@ or a Ray cluster (run_ray)."""
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import time
 import traceback
@@ -14,6 +15,7 @@ from pathlib import Path
 from typing import Callable
 
 from highway_srl.experiments.runs import default_threads, provenance, write_json
+from highway_srl.interrupts import exit_at_once, held, quiet_worker
 from highway_srl.study.jobs import Job
 
 EXECUTORS = ("local", "ray")  # what runs the jobs (the simulators are highway_srl.backends)
@@ -90,10 +92,12 @@ def place_jobs(device: str, count: int, gpus: int) -> list[str]:
 
 def exit_with_parent(parent_pid: int, poll_s: float = 1.0) -> None:
     """Worker initializer: end this worker once the study process that started it is gone (killed with
-    `kill PID`, not Ctrl-C, which reaches the whole group). An orphaned worker would go on training and
+    `kill -9 PID`; after Ctrl-C or `kill PID` it ends its workers itself). An orphaned worker would go on training and
     hold its run folder's lock, so the next `reproduce` would record that job as failed. A job killed
     this way resumes from its last checkpoint (files are written atomically)."""
     import threading
+
+    quiet_worker(exit_at_once)  # Ctrl-C: the study process reports it; the job resumes as after `kill`
 
     def watch() -> None:
         while True:
@@ -117,8 +121,10 @@ def run_local(jobs: list[Job], root: Path, device: str, workers: int, on_result,
 
     with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=mp.get_context("spawn"),
                              initializer=exit_with_parent, initargs=(os.getpid(),)) as pool:
-        futures = {pool.submit(work, job.to_dict(), str(root), dev, threads): job for job, dev in zip(jobs, devices)}
         try:
+            with held():  # the workers start deaf to Ctrl-C until exit_with_parent (interrupts.py)
+                futures = {pool.submit(work, job.to_dict(), str(root), dev, threads): job
+                           for job, dev in zip(jobs, devices)}
             for fut in as_completed(futures):
                 job = futures[fut]
                 try:
@@ -131,6 +137,11 @@ def run_local(jobs: list[Job], root: Path, device: str, workers: int, on_result,
                 on_result(job, result)
         except BaseException:
             pool.shutdown(wait=False, cancel_futures=True)
+            for child in mp.active_children():  # `kill` reached this process alone: end the jobs as Ctrl-C does
+                try:
+                    os.kill(child.pid, signal.SIGINT)
+                except ProcessLookupError:  # it ended meanwhile
+                    pass
             raise
 
 

@@ -14,6 +14,7 @@ Finished evaluations are never run again: run the same command to resume an inte
 
 from __future__ import annotations
 
+import json
 import time
 import traceback
 from dataclasses import asdict, dataclass
@@ -22,6 +23,7 @@ from pathlib import Path
 from typing import Callable
 
 from highway_srl.constants import TRAFFIC_LEVELS
+from highway_srl.experiments.records import check_fields, read_eval, read_metrics
 from highway_srl.experiments.runs import open_state, provenance, read_json, write_json
 from highway_srl.study.jobs import METHOD_LABELS, SCENES, Job
 from highway_srl.study.table import Column, Table
@@ -78,8 +80,29 @@ def transfer_jobs(settings: TransferSettings, methods=TRANSFER_METHODS, scenes=T
 
 
 def job_done(root: Path, job: Job, simulators) -> bool:
+    """Whether the job's run and every evaluation asked for are there; the files that are there are read
+    (records.read_metrics, read_eval, earlier_timings), so that a damaged one stops the study before
+    anything is written."""
     folder = root / job.folder
-    return (folder / "metrics.json").exists() and all((folder / eval_file(s)).exists() for s in simulators)
+    if (folder / "metrics.json").exists():
+        read_metrics(folder / "metrics.json")
+    earlier_timings(folder / JOB_FILE)
+    evals = [folder / eval_file(s) for s in simulators]
+    for path in evals:
+        if path.exists():
+            read_eval(path)
+    return (folder / "metrics.json").exists() and all(path.exists() for path in evals)
+
+
+def earlier_timings(path: Path) -> dict:
+    """The evaluations' seconds by simulator of a job's transfer-job.json ({} before its first result),
+    checked: ValueError in one line naming the file and the field."""
+    if not path.exists():
+        return {}
+    record = check_fields(read_json(path), {}, str(path))
+    timings = record.get("eval_s", {})
+    check_fields(timings, dict.fromkeys(timings, "number"), f"{path}: eval_s")
+    return timings
 
 
 def run_transfer_job(job_dict: dict, root: str, device: str = "cpu", threads: int = 1,
@@ -111,8 +134,7 @@ def run_transfer_job(job_dict: dict, root: str, device: str = "cpu", threads: in
         result.update(status="failed", message=f"{type(err).__name__}: {err}",
                       traceback=traceback.format_exc(limit=8))
     result["wall_s"] = round(time.perf_counter() - started, 2)
-    old = read_json(folder / JOB_FILE) if (folder / JOB_FILE).exists() else {}
-    result["eval_s"] = {**old.get("eval_s", {}), **result["eval_s"]}
+    result["eval_s"] = {**earlier_timings(folder / JOB_FILE), **result["eval_s"]}
     folder.mkdir(parents=True, exist_ok=True)
     write_json(folder / JOB_FILE, {"job": job.to_dict(), **result, **provenance()})
     return result
@@ -176,15 +198,33 @@ def run_transfer(out: str | Path, settings: TransferSettings = TransferSettings(
     return root / "transfer.md"
 
 
+STATE_KIND = "highway-srl transfer study"
+
+
+def check_state(state, path: Path) -> dict:
+    """A transfer.json, every field run_transfer reads or updates checked: ValueError in one line naming the
+    file and the field (a `{}`, a list or a null would otherwise be taken for a new study, or fail midway)."""
+    check_fields(state, {"kind": "text", "created": "text?", "wall_s": "number"}, str(path), ("created", "wall_s"))
+    if state["kind"] != STATE_KIND:
+        raise ValueError(f"{path} is no transfer study (its kind is {state['kind']!r})")
+    for name in ("settings", "jobs"):
+        if not isinstance(state.get(name), dict):
+            raise ValueError(f"{path}: {name} must be a JSON object, got {json.dumps(state.get(name))[:40]}")
+    for job_id, entry in state["jobs"].items():
+        check_fields(entry, {"status": "text", "message": "text?"}, f"{path}: jobs.{job_id}", ("message",))
+    return state
+
+
 def _open(root: Path, settings: TransferSettings) -> dict:
     state = open_state(root, STATE_FILE, "transfer study")
     if state is not None:
+        check_state(state, root / STATE_FILE)
         if state.get("settings") != asdict(settings):
             changed = sorted(k for k, v in asdict(settings).items() if state.get("settings", {}).get(k) != v)
             raise ValueError(f"--out {str(root)!r} holds a transfer study made with other settings "
                              f"({', '.join(changed)}); choose another --out")
         return state
-    return {"kind": "highway-srl transfer study", "settings": asdict(settings), "created": time.strftime(
+    return {"kind": STATE_KIND, "settings": asdict(settings), "created": time.strftime(
         "%Y-%m-%dT%H:%M:%S%z"), "jobs": {}}
 
 
@@ -196,7 +236,7 @@ def transfer_rows(root: Path, jobs: list[Job], simulators, traffic: str) -> list
             path = Path(root) / job.folder / eval_file(sim)
             row = {"scene": job.scene, "method": job.method, "simulator": sim}
             if path.exists():
-                level = read_json(path)["levels"].get(traffic, {})
+                level = read_eval(path)["levels"].get(traffic, {})
                 row["episodes"] = level.get("episodes")
                 for key, name in (("C_r", "C_r"), ("avg_speed", "speed"), ("R_r", "R_r"), ("R_s", "R_s")):
                     if key in level:

@@ -101,6 +101,19 @@ def test_play_drives_headless_with_scripted_keys_and_logs_like_every_method(tmp_
     assert config["method"] == "manual" and config["scenario"] == "two-lane"
 
 
+@pytest.mark.parametrize("driver", ["dummy", "offscreen"])
+def test_play_on_a_video_driver_without_keys_refuses_at_once_and_writes_nothing(tmp_path, monkeypatch, capsys, driver):
+    # such a driver reads no key: play would wait for the first key press forever
+    pytest.importorskip("pygame")
+    monkeypatch.setenv("SDL_VIDEODRIVER", driver)
+    code = main(["play", "--out", str(tmp_path / "manual")])
+    err = capsys.readouterr().err
+    assert code == 2 and err == (f"highway-srl: error: play needs a window that takes key presses, and SDL's video "
+                                 f"driver '{driver}' has none (SDL_VIDEODRIVER set so, or DISPLAY names no running "
+                                 "X server)\n"), err
+    assert not (tmp_path / "manual").exists()
+
+
 def test_play_keys_map_to_the_five_actions_at_each_tick():
     pygame = pytest.importorskip("pygame")
     from highway_srl.experiments.play import Keys

@@ -58,7 +58,37 @@ DAMAGE = {  # name: (file under the job folder or the study, how it is damaged, 
                                "study.json: invocations must be a JSON list, got null"),
     "study-steps-text": ("../study.json", lambda p: _edit_json(p, lambda d: d["budget_config"].update(steps="1e3")),
                          "study.json: budget_config: steps must be a non-negative integer"),
+    # the kinds of damage tests/cli/test_records.py gives each run file, where the cases above leave them out
+    "study-nan": ("../study.json", lambda p: _edit_json(p, lambda d: d["budget_config"].update(replay_ratio=NAN)),
+                  "study.json: budget_config: replay_ratio must be a finite number or null, got nan"),
+    "study-garbage-line": ("../study.json", lambda p: _garbage(p), "study.json is not valid JSON"),
+    "study-truncated": ("../study.json", lambda p: _truncated(p), "study.json is not valid JSON"),
+    "eval-missing-field": ("eval.json", lambda p: _edit_json(p, lambda d: d["levels"]["C"].pop("R_r")),
+                           "eval.json: levels.C.R_r must be a JSON object"),
+    "eval-nan": ("eval.json", lambda p: _edit_json(p, lambda d: d["levels"]["C"]["avg_speed"].update(low=NAN)),
+                 "eval.json: levels.C.avg_speed: low must be a finite number, got nan"),
+    "eval-garbage-line": ("eval.json", lambda p: _garbage(p), "eval.json is not valid JSON"),
+    "eval-truncated": ("eval.json", lambda p: _truncated(p), "eval.json is not valid JSON"),
+    "metrics-nan": ("metrics.json", lambda p: _edit_json(p, lambda d: d.update(wall_s=float("inf"))),
+                    "metrics.json: wall_s must be a finite number, got inf"),
+    "metrics-garbage-line": ("metrics.json", lambda p: _garbage(p), "metrics.json is not valid JSON"),
+    "metrics-truncated": ("metrics.json", lambda p: _truncated(p), "metrics.json is not valid JSON"),
+    "episode-missing-field": ("episodes.jsonl", lambda p: _edit_first_line(p, lambda r: r.pop("step")),
+                              "episodes.jsonl line 1 is damaged: the row: step is missing"),
+    "episode-nan": ("episodes.jsonl", lambda p: _edit_first_line(p, lambda r: r.update(avg_speed=NAN)),
+                    "episodes.jsonl line 1 is damaged: the row: avg_speed must be a finite number, got nan"),
+    "episode-garbage-line": ("episodes.jsonl", lambda p: _garbage(p), "episodes.jsonl line 2 is damaged: not JSON"),
 }
+NAN = float("nan")
+
+
+def _garbage(path) -> None:  # a line of garbage after the first
+    lines = path.read_text().splitlines(keepends=True)
+    path.write_text("".join(lines[:1] + ["\x00garbage}{\n"] + lines[1:]))
+
+
+def _truncated(path) -> None:  # cut at half its bytes
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
 
 
 @pytest.mark.parametrize("case", DAMAGE)

@@ -66,3 +66,54 @@ def test_bad_input_gives_a_one_line_error(tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert rc == 2 and len(err) == 1 and words in err[0], (argv, err)
     assert not (tmp_path / "new").exists()
+
+
+KIND = "highway-srl transfer study"
+DAMAGED_STATES = {  # transfer.json's text: what the one line must say
+    "{}": "transfer.json: kind is missing",
+    "[]": "transfer.json is damaged (not a JSON object: [])",
+    "null": "transfer.json is damaged (not a JSON object: null)",
+    '{"kind": "highway-srl transfer': "transfer.json is not valid JSON (Unterminated string",
+    "not json\n": "transfer.json is not valid JSON (Expecting value at line 1)",
+    '{"kind": "a study", "settings": {}, "jobs": {}}': "is no transfer study (its kind is 'a study')",
+    f'{{"kind": "{KIND}", "settings": [], "jobs": {{}}}}': "transfer.json: settings must be a JSON object, got []",
+    f'{{"kind": "{KIND}", "settings": {{}}, "jobs": null}}': "transfer.json: jobs must be a JSON object, got null",
+    f'{{"kind": "{KIND}", "settings": {{}}, "jobs": {{"a": []}}}}': "transfer.json: jobs.a must be a JSON object",
+    f'{{"kind": "{KIND}", "settings": {{}}, "jobs": {{"a": {{"status": 1}}}}}}':
+        "transfer.json: jobs.a: status must be a string, got 1",
+    f'{{"kind": "{KIND}", "settings": {{}}, "jobs": {{}}, "wall_s": NaN}}': "wall_s must be a finite number, got nan",
+}
+
+
+@pytest.mark.parametrize("text", DAMAGED_STATES)
+def test_a_damaged_transfer_json_is_one_line_and_nothing_is_written(tmp_path, capsys, text):
+    root = tmp_path / "t"
+    root.mkdir()
+    (root / "transfer.json").write_text(text)
+    rc = main(["transfer", "--steps", "320", "--envs", "4", "--episodes", "2", "--scenes", "merge", "--out", str(root)])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and DAMAGED_STATES[text] in err, err
+    assert [p.name for p in root.iterdir()] == ["transfer.json"] and (root / "transfer.json").read_text() == text
+
+
+@pytest.mark.parametrize("name, damage, words", [
+    ("eval.json", lambda d: d["levels"]["C"]["C_r"].update(value=1.5), "levels.C.C_r: value must be a number from 0 to 1"),
+    ("eval.json", lambda d: d.update(levels=[]), "levels must be a non-empty JSON object, got []"),
+    ("metrics.json", lambda d: d.pop("wall_s"), "metrics.json: wall_s is missing"),
+    ("transfer-job.json", lambda d: d.update(eval_s={"ours": None}), "eval_s: ours must be a finite number, got null"),
+])
+def test_a_damaged_file_of_a_job_stops_the_study_before_anything_is_written(study, tmp_path, name, damage, words):
+    import shutil
+
+    copy = tmp_path / "t"
+    shutil.copytree(study, copy)
+    path = copy / "runs" / "merge" / "rl" / name
+    data = json.loads(path.read_text())
+    damage(data)
+    path.write_text(json.dumps(data))
+    before = {p: p.read_bytes() for p in copy.rglob("*") if p.is_file()}
+    with pytest.raises(ValueError, match="^" + str(path).replace(".", r"\.")) as err:
+        run_transfer(copy, SMALL, methods=("moe-rm-srl", "rl"), scenes=("merge",), simulators=SIMS, jobs=1,
+                     log=lambda s: None)
+    assert words in str(err.value) and "\n" not in str(err.value)
+    assert {p: p.read_bytes() for p in copy.rglob("*") if p.is_file()} == before

@@ -1,0 +1,84 @@
+"""The falsify subcommand: search for ego-avoidable collisions of the rule layer; replay a case."""
+
+from __future__ import annotations
+
+import json
+
+from highway_srl.commands.arguments import adversary_name, levels, non_negative, positive, profile_name
+from highway_srl.constants import TRAFFIC_LEVELS
+
+
+def _cmd_falsify(args) -> int:
+    from highway_srl.experiments import falsify as fz
+
+    if args.replay is not None:
+        case = fz.load_case(args.replay)
+        result = fz.replay_case(case, args.profile, args.substitute)
+        if args.gif is not None:
+            result["gif"] = [str(p) for p in fz.render_case(case, args.gif, args.profile, args.overwrite)]
+        print(json.dumps(result, indent=2) if args.json else
+              (f"replayed under {result['profile']}: " + (f"collision in step {result['step']} ({result['cause']}; "
+               f"{'ego-avoidable' if result['ego_avoidable'] else 'unavoidable'}), "
+               f"{'confirmed' if result['confirmed'] else 'NOT at the recorded step ' + str(result['expected_step'])}"
+               if result["collided"] else "no collision: not confirmed")))
+        if args.gif is not None and not args.json:
+            print("\n".join(result["gif"]))
+        return 0 if result["confirmed"] else 1
+    modes = {"nominal": False, "adversarial": True}
+    names = [m.strip() for m in args.modes.split(",") if m.strip()]
+    if not names or any(m not in modes for m in names):
+        raise ValueError(f"--modes takes nominal, adversarial or both, got {args.modes!r}")
+    settings = fz.FalsifySettings(
+        scenes=tuple(x.strip() for x in args.scenes.split(",") if x.strip()), levels=tuple(args.levels),
+        modes=tuple(modes[m] for m in names), profile=args.profile or "safe", policy=args.policy,
+        episodes=args.episodes, envs=args.envs, seed=args.seed, steps=args.steps, adversary=args.adversary)
+    report = fz.falsify(settings, args.out, processes=args.processes)
+    if args.json:
+        print(json.dumps(report, indent=2))
+        return 0
+    print(f"{report['episodes']:,} episodes ({settings.profile} profile, {settings.policy} ego): "
+          f"{report['collisions']:,} collisions, {report['ego_avoidable']:,} ego-avoidable; 95 % upper bound on the "
+          f"per-episode rate of ego-avoidable collisions {report['ego_avoidable_rate_upper_95']:.3g}")
+    for reason, n in report["by_reason"].items():
+        print(f"  {n:6,d}  {reason}")
+    for case in report["cases"]:
+        print(f"  case {case.get('path', '(not written: no --out)')}: {case['cause']}")
+    return 0
+
+
+def _add_falsify(sub) -> None:
+    from highway_srl.experiments.falsify import POLICIES
+
+    p = sub.add_parser("falsify", help="search for ego-avoidable collisions of the rule layer; replay a case",
+                       description="Random (or adversarial) allowed actions over scenes x levels x nominal/"
+                       "adversarial; counts collisions by cause, ego-avoidable ones, and the 95 %% upper bound on "
+                       "their per-episode rate; one replayable case per cause in --out.")
+    p.add_argument("--scenes", default="two-lane", help="comma-separated: two-lane, multi-lane, merge, exit")
+    p.add_argument("--levels", type=levels, default=list(TRAFFIC_LEVELS), help="e.g. F, A,C,F or A..F (default A..F)")
+    p.add_argument("--modes", default="nominal,adversarial", help="nominal, adversarial or both (default both)")
+    p.add_argument("--profile", type=profile_name, default=None,
+                   help="control profile: safe (default) or paper; with --replay: the case's own unless given")
+    p.add_argument("--policy", choices=POLICIES, default="uniform", help="the ego: uniform among the allowed "
+                   "actions, greedy-ttc (the allowed action with the soonest predicted contact) or exg (ExG's gate)")
+    p.add_argument("--adversary", type=adversary_name, default="paper", help="group-3 cut-ins of adversarial mode")
+    p.add_argument("--episodes", type=positive, default=256, help="episodes per scene, level and mode")
+    p.add_argument("--envs", type=positive, default=256, help="episodes stepped together")
+    p.add_argument("--steps", type=positive, default=320, help="episode length in steps")
+    p.add_argument("--seed", type=non_negative, default=0)
+    p.add_argument("--out", default=None, help="folder for report.json and the cases (one per cause)")
+    p.add_argument("--processes", type=positive, default=1, help="worker processes of one thread each, sharing "
+                   "the batches (the report is the same for any count)")
+    p.add_argument("--replay", default=None, metavar="CASE.json", help="replay a case and confirm its collision "
+                   "(exit status 1 if it does not recur)")
+    p.add_argument("--substitute", action="store_true", help="with --replay: where the profile forbids a recorded "
+                   "action, take the most cautious allowed one (Slower, Idle, LaneChange, Faster)")
+    p.add_argument("--gif", default=None, metavar="OUT.gif", help="with --replay: draw the episode (a PNG beside it)")
+    p.add_argument("--overwrite", action="store_true", help="with --gif: replace the GIF and PNG if they exist")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=_cmd_falsify)
+
+
+
+def add_parsers(sub) -> None:
+    """falsify on the CLI's subparsers."""
+    _add_falsify(sub)

@@ -1,0 +1,114 @@
+"""Ctrl-C and `kill` at any moment of a command, with worker processes or without: one line on stderr, exit
+status 130 (Ctrl-C) or 143 (kill), no traceback from the command or a worker, and no process left behind.
+
+Each command runs in its own session, so that a signal to its process group is what Ctrl-C in a terminal
+does (every process of the foreground group, workers included). The signal goes once the command has
+reached a given point (a file, a worker process), never after a fixed sleep."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from cli_runs import TRAIN
+
+ROOT = Path(__file__).resolve().parents[2]
+STUDY = ["reproduce", "--budget", "smoke", "--jobs", "2", "--methods", "moe-rm-srl,rl", "--scenes", "two-lane"]
+
+pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads child processes from /proc")
+
+
+def children(pid: int) -> list[int]:
+    """The processes whose parent is pid."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:  # it ended meanwhile
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def group_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def stopped(argv, ready, sig=signal.SIGINT, whole_group=True, timeout=240) -> tuple[int, str]:
+    """Start the CLI with argv, wait until ready() holds, send sig (to its group, like Ctrl-C, or to the
+    command alone, like `kill PID`); its exit status and stderr once every process of its group is gone."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "highway_srl.cli", *map(str, argv)], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + timeout
+        while not ready(proc.pid):
+            assert proc.poll() is None, f"ended before it was ready: {proc.stderr.read()}"
+            assert time.monotonic() < deadline, "not ready in time"
+            time.sleep(0.05)
+        if whole_group:
+            os.killpg(proc.pid, sig)
+        else:
+            proc.send_signal(sig)
+        _, err = proc.communicate(timeout=timeout)
+        while group_alive(proc.pid) and time.monotonic() < deadline:  # its workers end with it
+            time.sleep(0.05)
+        assert not group_alive(proc.pid), "a worker outlived the command"
+        return proc.returncode, err
+    finally:
+        if group_alive(proc.pid):
+            os.killpg(proc.pid, signal.SIGKILL)
+
+
+def one_line(err: str, line: str) -> None:
+    assert "Traceback" not in err and "Error" not in err, err
+    lines = [x for x in err.replace("\r", "\n").splitlines() if x.strip() and not x.startswith("study:")]
+    assert len(lines) == 1 and lines[0].startswith(line), err
+
+
+def test_ctrl_c_in_training_is_one_line_with_the_way_to_resume(tmp_path):
+    out = tmp_path / "run"
+    code, err = stopped([*TRAIN, "--steps", "1000000", "--out", out],
+                        lambda pid: (out / "config.json").exists())
+    assert code == 130
+    one_line(err, "highway-srl: interrupted; continue from")
+
+
+def test_kill_of_a_training_is_one_line_and_status_143(tmp_path):
+    out = tmp_path / "run"
+    code, err = stopped([*TRAIN, "--steps", "1000000", "--out", out], lambda pid: (out / "config.json").exists(),
+                        sig=signal.SIGTERM, whole_group=False)
+    assert code == 143
+    one_line(err, "highway-srl: terminated; continue from")
+
+
+def test_ctrl_c_in_bench_with_worker_processes_is_one_line():
+    code, err = stopped(["bench", "sim", "--processes", "2", "--envs", "64", "--steps", "1000000"],
+                        lambda pid: len(children(pid)) >= 1)
+    assert code == 130
+    one_line(err, "highway-srl: interrupted")
+
+
+def test_ctrl_c_while_the_study_workers_start_is_one_line(tmp_path):
+    out = tmp_path / "study"
+    # the workers are there but still importing (a job's first file comes seconds later)
+    code, err = stopped([*STUDY, "--out", out], lambda pid: len(children(pid)) >= 2)
+    assert code == 130
+    one_line(err, "highway-srl: interrupted")
+
+
+def test_kill_of_a_study_ends_its_running_jobs_with_one_line(tmp_path):
+    out = tmp_path / "study"
+    code, err = stopped([*STUDY, "--out", out], lambda pid: any((out / "runs").glob("*/*/.lock")),
+                        sig=signal.SIGTERM, whole_group=False)
+    assert code == 143
+    one_line(err, "highway-srl: terminated")
