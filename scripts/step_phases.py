@@ -20,6 +20,7 @@ import time
 import torch
 
 from highway_srl.sim import World, dynamics, traffic_model
+from highway_srl.sim import step as step_module
 from highway_srl.sim import world as world_module
 
 # (module, function) pairs timed; each is looked up where the step calls it from
@@ -28,7 +29,7 @@ PHASES = [
     (traffic_model, "abort_unsafe_changes"), (traffic_model, "mobil_lane_changes"),
     (traffic_model, "occupancy"), (traffic_model, "sorted_order"), (traffic_model, "neighbour_keys"),
     (traffic_model, "inverse_order"), (dynamics, "ego_control"), (dynamics, "lateral"), (dynamics, "sv_contacts"),
-    (world_module, "ego_collision"), (world_module, "stage_events"), (world_module, "recycle"),
+    (step_module, "ego_collision"), (step_module, "stage_events"), (step_module, "recycle"),
     (world_module, "spawn"), (dynamics, "advance"), (world_module, "step_state"),
 ]
 

@@ -39,7 +39,8 @@ from highway_srl.sim.snapshot import Snapshot
 from highway_srl.sim.spawn import Layout, make_layout, spawn
 from highway_srl.sim.state import WorldState
 from highway_srl.sim.traffic_model import CENTRED_M, find_neighbours
-from highway_srl.sim.world import StageFlags, StepEvents, ego_neighbours
+from highway_srl.sim.events import StageFlags, StepEvents
+from highway_srl.sim.world import ego_neighbours
 
 FAR_M = 1.0e9  # x of a vehicle that is not on the road right now (never within d_max of anything)
 

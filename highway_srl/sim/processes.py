@@ -50,7 +50,7 @@ def slices(num_envs: int, processes: int) -> list[tuple[int, int]]:
 
 class WorldProcesses:
     """Worker processes that step the envs of `world` in slices (see the module's docstring); event_dtypes:
-    the step's events by name and dtype (world.STEP_EVENT_DTYPES), one shared (B,) buffer each."""
+    the step's events by name and dtype (events.STEP_EVENT_DTYPES), one shared (B,) buffer each."""
 
     def __init__(self, world, processes: int, event_dtypes: dict[str, torch.dtype]):
         try:

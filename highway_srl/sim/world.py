@@ -7,67 +7,25 @@ Python loops over envs or vehicles (only over the at most three lanes).
 from __future__ import annotations
 
 import copy
-import functools
-import math
-from dataclasses import dataclass, fields
+from dataclasses import fields
 
 import torch
 
-from highway_srl.constants import (
-    D_MAX_M,
-    EPISODE_STEPS,
-    STYLE_NAMES,
-    TRAFFIC_LEVELS,
-    VEHICLE_LENGTH_M,
-    TrafficLevel,
-)
+from highway_srl.constants import D_MAX_M, EPISODE_STEPS, STYLE_NAMES, TRAFFIC_LEVELS, VEHICLE_LENGTH_M
 from highway_srl.scenarios import scenario_spec
-from highway_srl.sim import dynamics
-from highway_srl.sim.adversary import paper_cut_ins
 from highway_srl.sim.allocator import keep_freed_memory
-from highway_srl.sim.contacts import ego_collision, stage_events
+from highway_srl.sim.compiled import CompiledStep, astuple_shallow, inference_mode_when_eager
+from highway_srl.sim.events import STEP_EVENT_DTYPES, StageFlags, StepEvents
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.processes import WorldProcesses, check_processes
-from highway_srl.sim.recycle import recycle
 from highway_srl.sim.road import Road, make_road
 from highway_srl.sim.snapshot import LANE_END, NO_VEHICLE, Snapshot
 from highway_srl.sim.spawn import Layout, make_layout, spawn
 from highway_srl.sim.state import WorldState
+from highway_srl.sim.step import check_command_types, check_command_values, step_state
 
 MAX_VEHICLES = 64
 ADVERSARIES = ("mild", "paper")  # group 3: adversary.safe_distance_cut_ins, adversary.paper_cut_ins
-
-
-@dataclass
-class StepEvents:
-    """What happened in one step, per env (B,) bool unless noted."""
-
-    collision: torch.Tensor  # the ego hit a vehicle, a lane end or left the road
-    success: torch.Tensor  # exit: reached the off-ramp's end (terminal); merge: reached the stability zone
-    failure: torch.Tensor  # exit: missed the off-ramp (terminal)
-    terminated: torch.Tensor
-    truncated: torch.Tensor  # the 320-step limit
-    sv_collisions: torch.Tensor  # (B,) long, SV-SV pairs whose boxes overlap after this step (nominal traffic: 0)
-
-
-# StepEvents' fields and dtypes, for those that allocate them before a step (the worker processes' buffers)
-STEP_EVENT_DTYPES = {"collision": torch.bool, "success": torch.bool, "failure": torch.bool, "terminated": torch.bool,
-                     "truncated": torch.bool, "sv_collisions": torch.long}
-
-
-@dataclass
-class StageFlags:
-    """The task's latched stages of the current episodes, (B,) bool each (§4.3's r_merge, r_exit,1, r_exit,2;
-    the names a ScenarioSpec's reward terms and success_flag use)."""
-
-    merged: torch.Tensor  # merge: the ego has reached the stability zone in a mainline lane
-    exit1: torch.Tensor  # exit: it has entered lane 1, next to the off-ramp
-    exit2: torch.Tensor  # exit: it has entered the off-ramp lane 2
-
-    def reward_inputs(self) -> dict[str, torch.Tensor]:
-        """The flags under the rewards' keyword names (r_merge, r_exit1, r_exit2), for scenario_reward and
-        deployment_step_reward."""
-        return {"r_merge": self.merged, "r_exit1": self.exit1, "r_exit2": self.exit2}
 
 
 def check_device(device: str | torch.device) -> torch.device:
@@ -84,20 +42,6 @@ def check_device(device: str | torch.device) -> torch.device:
     return dev
 
 
-def inference_mode_when_eager(fn):
-    """fn in torch.inference_mode when it runs eagerly (a fifth of a single env's step is autograd bookkeeping
-    otherwise); traced into a caller's graph (the trainer's compiled vector step), fn as it is: aot_autograd
-    fails on an inference-mode region inside a graph ('Cannot set version_counter for inference tensor'), and
-    a graph keeps no autograd bookkeeping of tensors that need no gradient anyway."""
-    inference = torch.inference_mode()(fn)
-
-    @functools.wraps(fn)
-    def run(*args, **kwargs):
-        return fn(*args, **kwargs) if torch.compiler.is_compiling() else inference(*args, **kwargs)
-
-    return run
-
-
 class World:
     """B independent episodes of one scenario and traffic level.
 
@@ -106,7 +50,7 @@ class World:
     adversarial is True, "mild" (ours: ahead of the ego, with room, beyond its safe distance) or "paper"
     (§4.3 as printed); both in sim/adversary.py.
 
-    compile: run step and reset as compiled static-shape graphs (see compiled_step): False (eager, the
+    compile: run step and reset as compiled static-shape graphs (sim/compiled.py): False (eager, the
     reference), True (torch.compile; on CUDA with CUDA graphs, mode "reduce-overhead") or a torch.compile
     mode. The compiled step follows eager to float rounding (tests/sim/test_compile.py); eager runs
     reproduce bit for bit. On the CPU it needs a C++ compiler.
@@ -180,7 +124,7 @@ class World:
         self.state = spawn(
             self.road, level, self.layout, seeds.to(self.device), torch.zeros_like(seeds).to(self.device), self.style
         )
-        self._compiled = compiled_step(self, compile) if compile else None
+        self._compiled = CompiledStep(self, compile) if compile else None
         # eager steps in the static form (no host read; bit-identical, more work: a sync-free loop on a GPU)
         self.static = False
         if processes > 1:
@@ -359,164 +303,6 @@ class World:
         """SV1..SV4 of the ego: nearest front/rear vehicle in current_lane and adjacent_lane (B,) within d_max
         (see ego_neighbours)."""
         return ego_neighbours(self.state, self.road, self._lane_tables, current_lane, adjacent_lane, d_max)
-
-
-def check_command_types(lane: torch.Tensor, speed: torch.Tensor, num_envs: int) -> None:
-    """ValueError unless lane holds integers and speed real numbers, num_envs of each (metadata only: no read
-    of the values, so also inside a compiled caller's graph)."""
-    if lane.dtype.is_floating_point or lane.dtype.is_complex or lane.dtype == torch.bool:
-        raise ValueError(f"target_lane must hold integer lane indices, got dtype {lane.dtype}")
-    if speed.dtype.is_complex or speed.dtype == torch.bool:
-        raise ValueError(f"target_speed must hold real numbers (m/s), got dtype {speed.dtype}")
-    for name, t in (("target_lane", lane), ("target_speed", speed)):
-        if t.numel() != num_envs:
-            raise ValueError(f"{name} needs {num_envs} value(s), one per env, got shape {tuple(t.shape)}")
-
-
-def check_command_values(lane: torch.Tensor, speed: torch.Tensor, num_lanes: int) -> None:
-    """ValueError unless every lane is one of the road's 0..num_lanes-1 and every speed is finite and >= 0."""
-    lane_lo, lane_hi = (v.item() for v in torch.aminmax(lane))
-    if lane_lo < 0 or lane_hi >= num_lanes:
-        raise ValueError(f"target_lane must be a lane of this road, 0..{num_lanes - 1}, got {lane_lo}..{lane_hi}")
-    speed_lo, speed_hi = (v.item() for v in torch.aminmax(speed))  # NaN anywhere makes both NaN
-    if not (speed_lo >= 0 and math.isfinite(speed_hi)):
-        raise ValueError(f"target_speed must be finite and >= 0 m/s, got {speed_lo}..{speed_hi}")
-
-
-def step_state(s: WorldState, road: Road, tables: LaneTables, layout: Layout, level: TrafficLevel,
-               target_lane: torch.Tensor, target_speed: torch.Tensor, adversary: str | None, max_steps: int,
-               static: bool = False) -> StepEvents:
-    """One step of every env of s, in place (see World.step); adversary: see World.active_adversary.
-    static: static shapes, no host reads (the form torch.compile takes in one graph; sim/selection.py)."""
-    if adversary == "paper":
-        paper_cut_ins(s, tables, static)
-    sv_collisions, neighbours = dynamics.advance(s, road, tables, layout, target_lane, target_speed,
-                                                 adversary == "mild", static)
-    collision = ego_collision(s, road, tables, neighbours, static)
-    success, failure = stage_events(s, road)
-    recycle(s, road, layout, level, static)
-    s.t += 1
-    terminated = collision | failure | (success & road.spec.success_terminates)
-    truncated = (s.t >= max_steps) & ~terminated
-    return StepEvents(collision, success, failure, terminated, truncated, sv_collisions)
-
-
-COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
-
-
-def compile_options(how: bool | str, device: torch.device) -> dict:
-    """torch.compile's keywords for a static-shape graph: fullgraph (a graph break is an error), static
-    shapes. how: True (the device's default: CUDA graphs on CUDA, mode "reduce-overhead"; C++ kernels on the
-    CPU), a torch.compile mode, or a backend name ("eager", "aot_eager": graph capture without code
-    generation, for checks). On the CPU, True also makes inductor's wrapper C++ (cpp_wrapper): the graph's
-    kernels are then called from C++ instead of a generated Python function, which made one env's compiled
-    step 1.2-1.4x faster (docs/benchmarks.md), for a longer compilation."""
-    mode, backend, options = None, "inductor", None
-    if how is True:
-        if device.type == "cuda":
-            mode = "reduce-overhead"
-        else:
-            options = {"cpp_wrapper": True}  # torch.compile takes a mode or options, not both
-    elif how in COMPILE_MODES:
-        mode = how
-    else:
-        backend = how
-    # each World or Trainer adds cache entries for its methods' code (self and its constants are guarded
-    # on); dynamo's default limit of 8 would refuse the ninth compiled one of a process under fullgraph
-    torch._dynamo.config.recompile_limit = max(torch._dynamo.config.recompile_limit, 256)
-    return dict(fullgraph=True, mode=mode, backend=backend, dynamic=False, options=options)
-
-
-# A compiled graph's first WARM_CALLS calls (once all its versions exist) check every guard; later ones only
-# those that tell its versions apart (call_settled). CHECK_GUARDS = True: every call checks them all.
-WARM_CALLS = 2
-CHECK_GUARDS = False
-
-
-def call_settled(graph, *args):
-    """graph(*args), dynamo checking only the guards that tell graph's compiled versions apart
-    (torch.compiler.set_stance's skip_guard_eval_unsafe), for a graph whose every version has been compiled
-    and run: the callers (compiled_step, trainer.compile_vector_step) say when that is.
-
-    Why: dynamo checks every guard of a graph (each state tensor's metadata, each attribute the trace read) on
-    every call: 80 us (one env's world step) to 200 us (a training graph) a call on this CPU, and a compiled
-    MoE-RM-SRL training step makes 17 calls at 16 envs (collect, 16 update rounds): 2.8-3.5 ms of host time
-    a vector step, more than its kernels on a GPU (docs/benchmarks.md). Why it is safe here: every graph has
-    static shapes and reads no Python value that changes from call to call once its versions exist (the
-    tests make a recompile an error, with CHECK_GUARDS on); a graph called with a new kind of input would
-    silently run an old version instead of being recompiled, so nothing outside those callers should call
-    this."""
-    if CHECK_GUARDS:
-        return graph(*args)
-    with torch.compiler.set_stance("default", skip_guard_eval_unsafe=True):
-        return graph(*args)
-
-
-def uses_cuda_graphs(options: dict, device: torch.device) -> bool:
-    """Whether a graph compiled with these compile_options replays as CUDA graphs (its outputs are then
-    overwritten by its next replay: copy or consume them first)."""
-    return device.type == "cuda" and options["backend"] == "inductor" and options["mode"] == "reduce-overhead"
-
-
-class compiled_step:  # noqa: N801 (used like a function: compiled_step(world, mode))
-    """World.step and World.reset(mask) of one world as torch.compile graphs of the static step.
-
-    The graphs are pure (state tensors in, new state tensors out); the results are copied into the
-    world's state tensors, which therefore stay the same objects that callers may hold. Under CUDA graphs
-    the graph's outputs are overwritten by its next replay, hence the copy and the events' clone."""
-
-    def __init__(self, world: World, how: bool | str):
-        """how: see compile_options."""
-        self.world = world
-        opts = compile_options(how, world.device)
-        self.cuda_graphs = uses_cuda_graphs(opts, world.device)
-        # torch.compile is lazy: only the graphs a caller uses are compiled
-        self._step = torch.compile(self.pure_step, **opts)
-        self._reset = torch.compile(self.pure_reset, **opts)
-        self._step_reset = torch.compile(self.pure_step_reset, **opts)
-        self._calls = {}  # per graph: each has one version (the world's settings are fixed), warm after WARM_CALLS
-
-    def pure_step(self, state: tuple, target_lane: torch.Tensor, target_speed: torch.Tensor):
-        w = self.world
-        s = WorldState(*(t.clone() for t in state))
-        ev = step_state(s, w.road, w._lane_tables, w.layout, w.level, target_lane, target_speed,
-                        w.active_adversary, w.max_steps, static=True)
-        return astuple_shallow(s), astuple_shallow(ev)
-
-    def pure_reset(self, state: tuple, mask: torch.Tensor):
-        return astuple_shallow(self.world.spawn_where(WorldState(*state), mask))
-
-    def pure_step_reset(self, state: tuple, target_lane: torch.Tensor, target_speed: torch.Tensor):
-        new, ev = self.pure_step(state, target_lane, target_speed)
-        events = StepEvents(*ev)
-        return self.pure_reset(new, events.terminated | events.truncated), ev
-
-    def _call(self, graph, *args):
-        """Run a compiled graph on the world's state; its new state is copied into the state's tensors."""
-        if self.cuda_graphs:
-            torch.compiler.cudagraph_mark_step_begin()
-        calls = self._calls[graph] = self._calls.get(graph, 0) + 1
-        run = call_settled if calls > WARM_CALLS else (lambda g, *a: g(*a))
-        out = run(graph, astuple_shallow(self.world.state), *args)
-        new, ev = out if graph is not self._reset else (out, None)
-        torch._foreach_copy_(list(astuple_shallow(self.world.state)), list(new))
-        if ev is not None:
-            return StepEvents(*(e.clone() for e in ev) if self.cuda_graphs else ev)
-        return None
-
-    def step(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
-        return self._call(self._step, target_lane, target_speed)
-
-    def step_and_reset(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
-        return self._call(self._step_reset, target_lane, target_speed)
-
-    def reset(self, mask: torch.Tensor) -> None:
-        self._call(self._reset, mask.reshape(self.world.num_envs))
-
-
-def astuple_shallow(obj) -> tuple:
-    """A dataclass's fields as a tuple of the same objects (dataclasses.astuple would deep-copy tensors)."""
-    return tuple(getattr(obj, f.name) for f in fields(obj))
 
 
 def ego_neighbours(s: WorldState, road: Road, tables: LaneTables, current_lane: torch.Tensor,

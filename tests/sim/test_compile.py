@@ -10,7 +10,8 @@ import torch
 
 from highway_srl.sim import World
 from highway_srl.sim.policies import idm_ego
-from highway_srl.sim.world import astuple_shallow, step_state
+from highway_srl.sim.compiled import astuple_shallow
+from highway_srl.sim.step import step_state
 
 # (scenario, adversary): None nominal, "mild" or "paper" (World's adversary)
 VARIANTS = [(sc, adv) for sc in ("two-lane", "multi-lane", "merge", "exit") for adv in (None, "mild")]
