@@ -139,7 +139,7 @@ def _seeds(text: str) -> tuple[int, ...]:
 def train_config(args):
     from highway_srl.agents.dqn import DQNConfig
     from highway_srl.agents.trainer import TrainConfig
-    from highway_srl.sim.world import check_device
+    from highway_srl.sim.device import check_device
 
     check_scenario(args.scenario)
     if args.traffic not in TRAFFIC_LEVELS:
@@ -213,7 +213,7 @@ def format_report(report: dict) -> str:
 def _cmd_evaluate(args) -> int:
     from highway_srl.experiments.policy import read_model
     from highway_srl.experiments.runs import claim_outputs, progress_bar
-    from highway_srl.sim.world import check_device
+    from highway_srl.sim.device import check_device
 
     from highway_srl.experiments.evaluate import check_evaluation_memory
 
@@ -268,7 +268,7 @@ def _cmd_reproduce(args) -> int:
         raise ValueError("choose a budget: --budget smoke, quick or paper (see highway-srl reproduce --help)")
     executor = _executor(args)
     if executor == "local":  # on Ray the workers' devices count, not this machine's
-        from highway_srl.sim.world import check_device
+        from highway_srl.sim.device import check_device
 
         check_device(args.device)
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip()) if args.methods else None

@@ -21,7 +21,6 @@ import torch
 
 from highway_srl.sim import World, dynamics, traffic_model
 from highway_srl.sim import step as step_module
-from highway_srl.sim import world as world_module
 
 # (module, function) pairs timed; each is looked up where the step calls it from
 PHASES = [
@@ -30,7 +29,7 @@ PHASES = [
     (traffic_model, "occupancy"), (traffic_model, "sorted_order"), (traffic_model, "neighbour_keys"),
     (traffic_model, "inverse_order"), (dynamics, "ego_control"), (dynamics, "lateral"), (dynamics, "sv_contacts"),
     (step_module, "ego_collision"), (step_module, "stage_events"), (step_module, "recycle"),
-    (world_module, "spawn"), (dynamics, "advance"), (world_module, "step_state"),
+    (step_module, "spawn"), (dynamics, "advance"), (step_module, "step_state"),
 ]
 
 

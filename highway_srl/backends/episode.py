@@ -11,7 +11,7 @@ an event mean the same on every backend and follow any change to World's semanti
 - keeping the flow centred on the ego: recycle.recycle (who moves, to which lane, where, how fast);
 - the ego's collisions (boxes, lane ends, change windows, road edges): contacts.ego_collision;
 - stage flags and success / failure events: contacts.stage_events; termination and truncation as World;
-- the neighbour snapshot: world.ego_neighbours, the function behind World.neighbours.
+- the neighbour snapshot: snapshot.ego_neighbours, the function behind World.neighbours.
 
 The backend turns the results into commands for its simulator (a forced lane change, a vehicle moved).
 """
@@ -32,15 +32,14 @@ from highway_srl.constants import (
 from highway_srl.scenarios import scenario_spec
 from highway_srl.sim.adversary import safe_distance_cut_ins
 from highway_srl.sim.contacts import ego_collision, stage_events
+from highway_srl.sim.events import StageFlags, StepEvents
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.recycle import recycle
 from highway_srl.sim.road import Road, make_road
-from highway_srl.sim.snapshot import Snapshot
+from highway_srl.sim.snapshot import Snapshot, ego_neighbours
 from highway_srl.sim.spawn import Layout, make_layout, spawn
 from highway_srl.sim.state import WorldState
 from highway_srl.sim.traffic_model import CENTRED_M, find_neighbours
-from highway_srl.sim.events import StageFlags, StepEvents
-from highway_srl.sim.world import ego_neighbours
 
 FAR_M = 1.0e9  # x of a vehicle that is not on the road right now (never within d_max of anything)
 

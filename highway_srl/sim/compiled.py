@@ -8,13 +8,12 @@ value back to the host, so one step is one graph.
 from __future__ import annotations
 
 import functools
-from dataclasses import fields
 
 import torch
 
 from highway_srl.sim.events import StepEvents
-from highway_srl.sim.state import WorldState
-from highway_srl.sim.step import step_state
+from highway_srl.sim.state import WorldState, astuple_shallow
+from highway_srl.sim.step import reset_compact, step_state
 
 COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
 
@@ -86,20 +85,23 @@ def inference_mode_when_eager(fn):
     return run
 
 
-def astuple_shallow(obj) -> tuple:
-    """A dataclass's fields as a tuple of the same objects (dataclasses.astuple would deep-copy tensors)."""
-    return tuple(getattr(obj, f.name) for f in fields(obj))
-
-
 class CompiledStep:
-    """World.step and World.reset(mask) of one world as torch.compile graphs of the static step.
+    """How a compiled World steps (World(compile=...)): World.step, step_and_reset and reset(mask) of one
+    world as torch.compile graphs of the static step; the methods of sim/step.py's EagerSteps.
 
     The graphs are pure (state tensors in, new state tensors out); the results are copied into the
     world's state tensors, which therefore stay the same objects that callers may hold. Under CUDA graphs
     the graph's outputs are overwritten by its next replay, hence the copy and the events' clone."""
 
+    compiled, shares_state = True, False
+
+    @property
+    def worker_pids(self) -> list[int]:
+        return []
+
     def __init__(self, world, how: bool | str):
-        """world: the World whose state the graphs step; how: see compile_options."""
+        """world: the World whose state the graphs step (the one the methods are given); how: see
+        compile_options."""
         self.world = world
         opts = compile_options(how, world.device)
         self.cuda_graphs = uses_cuda_graphs(opts, world.device)
@@ -137,11 +139,20 @@ class CompiledStep:
             return StepEvents(*(e.clone() for e in ev) if self.cuda_graphs else ev)
         return None
 
-    def step(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
+    def step(self, world, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
         return self._call(self._step, target_lane, target_speed)
 
-    def step_and_reset(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
+    def step_and_reset(self, world, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
         return self._call(self._step_reset, target_lane, target_speed)
 
-    def reset(self, mask: torch.Tensor) -> None:
-        self._call(self._reset, mask.reshape(self.world.num_envs))
+    def reset(self, world, mask: torch.Tensor | None) -> None:
+        if mask is None:  # every env: the compact reset spawns them all, no graph needed
+            reset_compact(world, None)
+        else:
+            self.reset_where(world, mask)
+
+    def reset_where(self, world, mask: torch.Tensor) -> None:
+        self._call(self._reset, mask.reshape(world.num_envs))
+
+    def close(self) -> None:
+        pass

@@ -1,4 +1,5 @@
-"""One step of a world's state, in place, and the checks of the ego's commands it takes.
+"""One step of a world's state, in place; how an eager World steps and resets (EAGER); the checks of the
+ego's commands.
 
 A step is a fixed sequence of tensor operations over (B, N); there are no per-vehicle objects and no
 Python loops over envs or vehicles (only over the at most three lanes).
@@ -18,8 +19,8 @@ from highway_srl.sim.events import StepEvents
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.recycle import recycle
 from highway_srl.sim.road import Road
-from highway_srl.sim.spawn import Layout
-from highway_srl.sim.state import WorldState
+from highway_srl.sim.spawn import Layout, spawn
+from highway_srl.sim.state import WorldState, astuple_shallow
 
 
 def step_state(s: WorldState, road: Road, tables: LaneTables, layout: Layout, level: TrafficLevel,
@@ -38,6 +39,54 @@ def step_state(s: WorldState, road: Road, tables: LaneTables, layout: Layout, le
     terminated = collision | failure | (success & road.spec.success_terminates)
     truncated = (s.t >= max_steps) & ~terminated
     return StepEvents(collision, success, failure, terminated, truncated, sv_collisions)
+
+
+def reset_compact(world, mask: torch.Tensor | None) -> None:
+    """New episodes (episode + 1) in the envs of world where mask (B,) is True, all envs if None: only
+    those envs are spawned, in place (a host read of mask)."""
+    s = world.state
+    idx = torch.arange(world.num_envs, device=world.device) if mask is None else mask.nonzero().squeeze(1)
+    if idx.numel() == 0:
+        return
+    fresh = spawn(world.road, world.level, world.layout, s.seed[idx], s.episode[idx] + 1, world.style)
+    s.index_put(idx, fresh)
+
+
+class EagerSteps:
+    """How an eager World steps (the reference): in this process, operation by operation, in the compact
+    form or, with world.static, the static one. CompiledStep (sim/compiled.py) and WorldProcesses
+    (sim/processes.py) have the same methods; World chooses one when it is made. Each method takes the
+    world it works on, so one EagerSteps serves every eager world and view (EAGER)."""
+
+    compiled, shares_state = False, False
+
+    @property
+    def worker_pids(self) -> list[int]:
+        return []
+
+    def step(self, world, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
+        return step_state(world.state, world.road, world.lane_tables, world.layout, world.level, target_lane,
+                          target_speed, world.active_adversary, world.max_steps, static=world.static)
+
+    def step_and_reset(self, world, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
+        events = self.step(world, target_lane, target_speed)
+        done = events.terminated | events.truncated
+        if bool(done.any()):
+            world.reset(done)
+        return events
+
+    def reset(self, world, mask: torch.Tensor | None) -> None:
+        reset_compact(world, mask)
+
+    def reset_where(self, world, mask: torch.Tensor) -> None:
+        fresh = world.spawn_where(world.state, mask)
+        torch._foreach_copy_(list(astuple_shallow(world.state)), list(astuple_shallow(fresh)))
+
+    def close(self) -> None:
+        pass
+
+
+EAGER = EagerSteps()
 
 
 def check_command_types(lane: torch.Tensor, speed: torch.Tensor, num_envs: int) -> None:

@@ -1,7 +1,9 @@
-"""The batched highway world: reset, step and the ego's neighbour query, on CPU or CUDA.
+"""The batched highway world: B episodes of one scenario and traffic level, reset, stepped and queried
+together on CPU or CUDA (World).
 
-A step is a fixed sequence of tensor operations over (B, N); there are no per-vehicle objects and no
-Python loops over envs or vehicles (only over the at most three lanes).
+How a world steps is chosen once, when it is made: eagerly in this process (sim/step.py, the reference),
+as compiled graphs (sim/compiled.py) or in worker processes (sim/processes.py); World's methods check
+their arguments and hand the work to that choice.
 """
 
 from __future__ import annotations
@@ -11,35 +13,22 @@ from dataclasses import fields
 
 import torch
 
-from highway_srl.constants import D_MAX_M, EPISODE_STEPS, STYLE_NAMES, TRAFFIC_LEVELS, VEHICLE_LENGTH_M
+from highway_srl.constants import D_MAX_M, EPISODE_STEPS, STYLE_NAMES, TRAFFIC_LEVELS, TrafficLevel
 from highway_srl.scenarios import scenario_spec
 from highway_srl.sim.allocator import keep_freed_memory
-from highway_srl.sim.compiled import CompiledStep, astuple_shallow, inference_mode_when_eager
-from highway_srl.sim.events import STEP_EVENT_DTYPES, StageFlags, StepEvents
+from highway_srl.sim.compiled import CompiledStep, inference_mode_when_eager
+from highway_srl.sim.device import check_device
+from highway_srl.sim.events import StageFlags, StepEvents
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.processes import WorldProcesses, check_processes
 from highway_srl.sim.road import Road, make_road
-from highway_srl.sim.snapshot import LANE_END, NO_VEHICLE, Snapshot
+from highway_srl.sim.snapshot import Snapshot, ego_neighbours
 from highway_srl.sim.spawn import Layout, make_layout, spawn
 from highway_srl.sim.state import WorldState
-from highway_srl.sim.step import check_command_types, check_command_values, step_state
+from highway_srl.sim.step import EAGER, check_command_types, check_command_values
 
 MAX_VEHICLES = 64
 ADVERSARIES = ("mild", "paper")  # group 3: adversary.safe_distance_cut_ins, adversary.paper_cut_ins
-
-
-def check_device(device: str | torch.device) -> torch.device:
-    try:
-        dev = torch.device(device)
-    except (RuntimeError, TypeError):
-        raise ValueError(f"unknown device {device!r}; use cpu, cuda or cuda:N") from None
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError(f"device {device!r} is not available here (no CUDA); use cpu")
-    if dev.type == "cuda" and dev.index is not None and dev.index >= torch.cuda.device_count():
-        raise ValueError(f"device {device!r} does not exist; {torch.cuda.device_count()} CUDA device(s) found")
-    if dev.type not in ("cpu", "cuda"):
-        raise ValueError(f"unsupported device {device!r}; use cpu, cuda or cuda:N")
-    return dev
 
 
 class World:
@@ -86,21 +75,7 @@ class World:
         compile: bool | str = False,
         processes: int = 1,
     ):
-        scenario_spec(scenario)  # raises the one-line error naming the scenarios
-        if traffic not in TRAFFIC_LEVELS:
-            raise ValueError(f"unknown traffic level {traffic!r}; choose one of {', '.join(TRAFFIC_LEVELS)}")
-        if not isinstance(num_envs, int) or num_envs < 1:
-            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
-        if style is not None and style not in STYLE_NAMES:
-            raise ValueError(f"unknown driving style {style!r}; choose one of {', '.join(STYLE_NAMES)} or none")
-        level = TRAFFIC_LEVELS[traffic]
-        m = level.num_vehicles if num_vehicles is None else num_vehicles
-        if not isinstance(m, int) or m < 1 or m + 1 > MAX_VEHICLES:
-            raise ValueError(f"num_vehicles must be between 1 and {MAX_VEHICLES - 1}, got {m!r}")
-        if not isinstance(max_steps, int) or max_steps < 1:
-            raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
-        if adversary not in ADVERSARIES:
-            raise ValueError(f"unknown adversary {adversary!r}; choose one of {', '.join(ADVERSARIES)}")
+        level, m = check_world_args(scenario, traffic, num_envs, style, num_vehicles, max_steps, adversary)
         self.adversary = adversary
         self.device = check_device(device)
         check_processes(processes, num_envs, compile, self.device)
@@ -113,22 +88,19 @@ class World:
         self.num_envs, self.num_vehicles = num_envs, m + 1
         self.max_steps = max_steps
         self.style = None if style is None else STYLE_NAMES.index(style)
-        if isinstance(seed, int):
-            seeds = torch.arange(num_envs, dtype=torch.long) + seed
-        else:
-            seeds = torch.as_tensor(list(seed), dtype=torch.long)
-            if seeds.shape != (num_envs,):
-                raise ValueError(f"need {num_envs} seeds, got {seeds.shape[0]}")
+        seeds = seed_tensor(seed, num_envs)
         self._lane_tables = LaneTables.of(self.road, self.device)
-        self._processes: WorldProcesses | None = None
-        self.state = spawn(
+        self._state = spawn(
             self.road, level, self.layout, seeds.to(self.device), torch.zeros_like(seeds).to(self.device), self.style
         )
-        self._compiled = CompiledStep(self, compile) if compile else None
         # eager steps in the static form (no host read; bit-identical, more work: a sync-free loop on a GPU)
         self.static = False
-        if processes > 1:
-            self._processes = WorldProcesses(self, processes, STEP_EVENT_DTYPES)
+        # how this world steps, chosen once: EAGER, CompiledStep or WorldProcesses (the same methods)
+        self._steps = EAGER
+        if compile:
+            self._steps = CompiledStep(self, compile)
+        elif processes > 1:
+            self._steps = WorldProcesses(self, processes)
 
     @property
     def state(self) -> WorldState:
@@ -137,7 +109,7 @@ class World:
     @state.setter
     def state(self, new: WorldState) -> None:
         """Replace the state; with worker processes, copied into the shared tensors they step (same shapes)."""
-        if self._processes is None:
+        if not self._steps.shares_state:
             self._state = new
             return
         for f in fields(new):
@@ -153,56 +125,30 @@ class World:
         if not 0 <= lo < hi <= self.num_envs:
             raise ValueError(f"envs_view needs 0 <= lo < hi <= {self.num_envs}, got {lo}, {hi}")
         view = copy.copy(self)
-        view.num_envs, view._compiled, view._processes = hi - lo, None, None
+        view.num_envs, view._steps = hi - lo, EAGER
         view._state = WorldState(**{f.name: getattr(self._state, f.name)[lo:hi] for f in fields(self._state)})
         return view
 
     @property
     def worker_pids(self) -> list[int]:
         """The process ids of the P - 1 worker processes (processes = P > 1), else []."""
-        return [] if self._processes is None else [p.pid for p in self._processes.procs]
+        return self._steps.worker_pids
 
     def close(self) -> None:
         """End the worker processes (processes > 1); the world then steps no more. A no-op otherwise."""
-        if self._processes is not None:
-            self._processes.close()
-
-    def _in_processes(self, op: str) -> None:
-        self._processes.call(op, {"static": self.static, "adversarial": self.adversarial,
-                                  "adversary": self.adversary, "max_steps": self.max_steps})
+        self._steps.close()
 
     # ------------------------------------------------------------------ episodes
     @inference_mode_when_eager
     def reset(self, mask: torch.Tensor | None = None) -> None:
         """Start new episodes in the envs where mask (B,) is True (all envs if None)."""
-        s = self.state
-        if self._compiled is not None and mask is not None:
-            self._compiled.reset(mask)
-            return
-        if self._processes is not None:
-            if mask is not None:
-                self._processes.mask.copy_(mask.reshape(self.num_envs))
-            self._in_processes("reset_all" if mask is None else "reset")
-            return
-        idx = torch.arange(self.num_envs, device=self.device) if mask is None else mask.nonzero().squeeze(1)
-        if idx.numel() == 0:
-            return
-        fresh = spawn(self.road, self.level, self.layout, s.seed[idx], s.episode[idx] + 1, self.style)
-        s.index_put(idx, fresh)
+        self._steps.reset(self, mask)
 
     @inference_mode_when_eager
     def reset_where(self, mask: torch.Tensor) -> None:
         """reset(mask) in the static form: a masked select of a full spawn, no host read (the same
         values; compiled worlds always reset this way). Costs a spawn of every env."""
-        if self._compiled is not None:
-            self._compiled.reset(mask.reshape(self.num_envs))
-            return
-        if self._processes is not None:
-            self._processes.mask.copy_(mask.reshape(self.num_envs))
-            self._in_processes("reset_where")
-            return
-        fresh = self.spawn_where(self.state, mask)
-        torch._foreach_copy_(list(astuple_shallow(self.state)), list(astuple_shallow(fresh)))
+        self._steps.reset_where(self, mask)
 
     @inference_mode_when_eager
     def step(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
@@ -211,20 +157,13 @@ class World:
         Runs in inference mode (a fifth of a single env's step is autograd bookkeeping otherwise); the
         state is updated in place, so its tensors stay ordinary ones that callers may edit. The returned
         events are inference tensors: read them, combine them, or clone them before editing in place."""
-        s = self.state
-        target_lane, target_speed = self._commands(target_lane, target_speed)
-        if self._compiled is not None:
-            return self._compiled.step(target_lane, target_speed)
-        if self._processes is not None:
-            return self._step_in_processes("step", target_lane, target_speed)
-        return step_state(s, self.road, self._lane_tables, self.layout, self.level, target_lane, target_speed,
-                          self.active_adversary, self.max_steps, static=self.static)
+        return self._steps.step(self, *self._commands(target_lane, target_speed))
 
-    def _step_in_processes(self, op: str, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
-        self._processes.lane.copy_(target_lane)
-        self._processes.speed.copy_(target_speed)
-        self._in_processes(op)
-        return StepEvents(**{name: buf.clone() for name, buf in self._processes.events.items()})
+    @inference_mode_when_eager
+    def step_and_reset(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
+        """step, then new episodes where it terminated or truncated (the events are the step's): one graph
+        when compiled; eager, a reset only when some env is done (a host read)."""
+        return self._steps.step_and_reset(self, *self._commands(target_lane, target_speed))
 
     @property
     def active_adversary(self) -> str | None:
@@ -248,21 +187,7 @@ class World:
             return False  # traced into a caller's graph: a read would break it
         if self.check_commands is not None:
             return self.check_commands
-        return self._compiled is None and lane.device.type == "cpu" and speed.device.type == "cpu"
-
-    @inference_mode_when_eager
-    def step_and_reset(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
-        """step, then new episodes where it terminated or truncated (the events are the step's): one graph
-        when compiled; eager, a reset only when some env is done (a host read)."""
-        if self._compiled is not None:
-            return self._compiled.step_and_reset(*self._commands(target_lane, target_speed))
-        if self._processes is not None:
-            return self._step_in_processes("step_and_reset", *self._commands(target_lane, target_speed))
-        events = self.step(target_lane, target_speed)
-        done = events.terminated | events.truncated
-        if bool(done.any()):
-            self.reset(done)
-        return events
+        return not self._steps.compiled and lane.device.type == "cpu" and speed.device.type == "cpu"
 
     def spawn_where(self, s: WorldState, mask: torch.Tensor) -> WorldState:
         """State s with fresh episodes (episode + 1) in the envs where mask (B,) is True: a masked select
@@ -305,61 +230,32 @@ class World:
         return ego_neighbours(self.state, self.road, self._lane_tables, current_lane, adjacent_lane, d_max)
 
 
-def ego_neighbours(s: WorldState, road: Road, tables: LaneTables, current_lane: torch.Tensor,
-                   adjacent_lane: torch.Tensor, d_max: float = D_MAX_M) -> Snapshot:
-    """SV1..SV4 of the ego: nearest front/rear vehicle in current_lane and adjacent_lane (B,) within d_max.
+def check_world_args(scenario: str, traffic: str, num_envs, style: str | None, num_vehicles, max_steps,
+                     adversary: str) -> tuple[TrafficLevel, int]:
+    """World's arguments, or a one-line ValueError; returns the traffic level and the number of SVs."""
+    scenario_spec(scenario)  # raises the one-line error naming the scenarios
+    if traffic not in TRAFFIC_LEVELS:
+        raise ValueError(f"unknown traffic level {traffic!r}; choose one of {', '.join(TRAFFIC_LEVELS)}")
+    if not isinstance(num_envs, int) or num_envs < 1:
+        raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+    if style is not None and style not in STYLE_NAMES:
+        raise ValueError(f"unknown driving style {style!r}; choose one of {', '.join(STYLE_NAMES)} or none")
+    level = TRAFFIC_LEVELS[traffic]
+    m = level.num_vehicles if num_vehicles is None else num_vehicles
+    if not isinstance(m, int) or m < 1 or m + 1 > MAX_VEHICLES:
+        raise ValueError(f"num_vehicles must be between 1 and {MAX_VEHICLES - 1}, got {m!r}")
+    if not isinstance(max_steps, int) or max_steps < 1:
+        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    if adversary not in ADVERSARIES:
+        raise ValueError(f"unknown adversary {adversary!r}; choose one of {', '.join(ADVERSARIES)}")
+    return level, m
 
-    Reads s.x, s.y, s.v, s.heading, s.lane (B, N). Lane membership is by the nearest lane centre; 'front'
-    means the SV's centre is ahead of the ego's. The end of a dropped lane ahead appears as a standing
-    vehicle whose rear bumper is at the lane end.
-    """
-    x, lane = s.x[:, 1:], s.lane[:, 1:]
-    ego_x = s.x[:, 0]
-    dx = x - ego_x[:, None]
-    near = dx.abs() <= d_max
-    inf = torch.full_like(dx, float("inf"))
-    slots = []
-    for lane_q in (current_lane, adjacent_lane):
-        in_lane = (lane == lane_q[:, None]) & near
-        front_d, front_i = torch.where(in_lane & (dx > 0), dx, inf).min(1)
-        rear_d, rear_i = torch.where(in_lane & (dx <= 0), -dx, inf).min(1)
-        slots.append((front_d, front_i, lane_q))
-        slots.append((rear_d, rear_i, lane_q))
-    order = (0, 2, 1, 3)  # SV1 front-current, SV2 front-adjacent, SV3 rear-current, SV4 rear-adjacent
-    dist = torch.stack([slots[k][0] for k in order], 1)
-    idx = torch.stack([slots[k][1] for k in order], 1) + 1
-    valid = torch.isfinite(dist)
-    gx = lambda t: torch.gather(t, 1, idx)  # noqa: E731
-    sv_x, sv_y, sv_v, sv_h = gx(s.x), gx(s.y), gx(s.v), gx(s.heading)
-    sv_index = torch.where(valid, idx, NO_VEHICLE)
-    # lane ends ahead (merge on-ramp): a standing obstacle if nearer than the front vehicle
-    end = tables.drop_end_m
-    for k, lane_q in ((0, current_lane), (1, adjacent_lane)):
-        lane_end = end[lane_q.clamp(min=0)]
-        wall_x = lane_end + 0.5 * VEHICLE_LENGTH_M
-        use = (lane_q >= 0) & (wall_x - ego_x <= d_max) & (~valid[:, k] | (wall_x < sv_x[:, k]))
-        use &= torch.isfinite(lane_end) & (wall_x > ego_x)
-        sv_x[:, k] = torch.where(use, wall_x, sv_x[:, k])
-        sv_y[:, k] = torch.where(use, lane_q.float() * road.lane_width_m, sv_y[:, k])
-        sv_v[:, k] = torch.where(use, 0.0, sv_v[:, k])
-        sv_h[:, k] = torch.where(use, 0.0, sv_h[:, k])
-        sv_index[:, k] = torch.where(use, LANE_END, sv_index[:, k])
-        valid[:, k] |= use
-    zero = torch.zeros_like(sv_x)
-    return Snapshot(
-        ego_x=ego_x,
-        ego_y=s.y[:, 0],
-        ego_vx=s.v[:, 0] * torch.cos(s.heading[:, 0]),
-        ego_vy=s.v[:, 0] * torch.sin(s.heading[:, 0]),
-        ego_heading=s.heading[:, 0],
-        ego_lane=s.lane[:, 0],
-        sv_x=torch.where(valid, sv_x, zero),
-        sv_y=torch.where(valid, sv_y, zero),
-        sv_vx=torch.where(valid, sv_v * torch.cos(sv_h), zero),
-        sv_vy=torch.where(valid, sv_v * torch.sin(sv_h), zero),
-        sv_heading=torch.where(valid, sv_h, zero),
-        sv_valid=valid,
-        sv_index=sv_index,
-        current_lane=current_lane,
-        adjacent_lane=adjacent_lane,
-    )
+
+def seed_tensor(seed: int | list[int], num_envs: int) -> torch.Tensor:
+    """(B,) long seeds: seed + b for an int, else the B given ones (a one-line ValueError for another count)."""
+    if isinstance(seed, int):
+        return torch.arange(num_envs, dtype=torch.long) + seed
+    seeds = torch.as_tensor(list(seed), dtype=torch.long)
+    if seeds.shape != (num_envs,):
+        raise ValueError(f"need {num_envs} seeds, got {seeds.shape[0]}")
+    return seeds
