@@ -26,8 +26,8 @@ from highway_srl.constants import DEFAULT_ADVERSARY, DEFAULT_PROFILE, OBS_DIM
 from highway_srl.rules import control_profile
 from highway_srl.rules.episode import RESULT_FIELDS, EpisodeStats, FinishedEpisodes, episode_row
 from highway_srl.sim import World
+from highway_srl.sim.adversary import ADVERSARIES
 from highway_srl.sim.compiled import WARM_CALLS, call_settled, compile_options, uses_cuda_graphs
-from highway_srl.sim.world import ADVERSARIES
 from highway_srl.sim.state import WorldState
 
 

@@ -7,7 +7,7 @@ an event mean the same on every backend and follow any change to World's semanti
 
 - the initial placement: sim/spawn.spawn (same vehicles, styles, headways, speeds per seed and episode);
 - which commanded ego lane changes are accepted: LaneTables.can_change;
-- the adversarial cut-in trigger and its random draw: adversary.safe_distance_cut_ins;
+- the adversarial cut-in trigger and its random draw: adversary.cut_ins_ahead_with_room;
 - keeping the flow centred on the ego: recycle.recycle (who moves, to which lane, where, how fast);
 - the ego's collisions (boxes, lane ends, change windows, road edges): contacts.ego_collision;
 - stage flags and success / failure events: contacts.stage_events; termination and truncation as World;
@@ -30,7 +30,7 @@ from highway_srl.constants import (
     TRAFFIC_LEVELS,
 )
 from highway_srl.scenarios import scenario_spec
-from highway_srl.sim.adversary import safe_distance_cut_ins
+from highway_srl.sim.adversary import cut_ins_ahead_with_room
 from highway_srl.sim.contacts import ego_collision, stage_events
 from highway_srl.sim.events import StageFlags, StepEvents
 from highway_srl.sim.lane_tables import LaneTables
@@ -178,7 +178,7 @@ class EpisodeCore:
 
     # ------------------------------------------------------------------ adversarial cut-ins
     def adversarial_cut_ins(self, frame: Frame) -> list[int]:
-        """SVs that start a forced cut-in into the ego's lane this step (adversary.safe_distance_cut_ins)."""
+        """SVs that start a forced cut-in into the ego's lane this step (adversary.cut_ins_ahead_with_room)."""
         if not self.adversarial:
             return []
         near = frame.present & (np.abs(frame.lane - frame.lane[0]) == 1) & (frame.x - frame.x[0] < D_MAX_M)
@@ -187,7 +187,7 @@ class EpisodeCore:
             return []  # nothing can trigger; skips the tensor work on most steps
         ws = self.sync(frame)
         before = ws.forced.clone()
-        safe_distance_cut_ins(ws, self.tables, find_neighbours(ws, self.road))
+        cut_ins_ahead_with_room(ws, self.tables, find_neighbours(ws, self.road))
         fired = (ws.forced & ~before)[0].numpy() & frame.present
         self.forced_lane = np.where(fired, int(frame.lane[0]), self.forced_lane)
         return [int(i) for i in np.nonzero(fired)[0]]

@@ -52,7 +52,7 @@ def advance(s: WorldState, road: Road, tables: LaneTables, layout: Layout, targe
     traffic_model.abort_unsafe_changes(s, road, nb, accel, static)
     traffic_model.mobil_lane_changes(s, road, tables, nb, accel, static)
     if adversarial:
-        adversary.safe_distance_cut_ins(s, tables, nb, static)
+        adversary.cut_ins_ahead_with_room(s, tables, nb, static)
     ego_control(s, tables, target_lane, target_speed, accel)
 
     v_new, v_mid = integrate_speed(s.v, accel, DT_S, V_MAX_MPS)

@@ -13,7 +13,7 @@ import torch
 
 from highway_srl.constants import TrafficLevel
 from highway_srl.sim import dynamics
-from highway_srl.sim.adversary import paper_cut_ins
+from highway_srl.sim.adversary import cut_ins_whatever_the_gaps
 from highway_srl.sim.contacts import ego_collision, stage_events
 from highway_srl.sim.events import StepEvents
 from highway_srl.sim.lane_tables import LaneTables
@@ -29,7 +29,7 @@ def step_state(s: WorldState, road: Road, tables: LaneTables, layout: Layout, le
     """One step of every env of s, in place (see World.step); adversary: see World.active_adversary.
     static: static shapes, no host reads (the form torch.compile takes in one graph; sim/selection.py)."""
     if adversary == "paper":
-        paper_cut_ins(s, tables, static)
+        cut_ins_whatever_the_gaps(s, tables, static)
     sv_collisions, neighbours = dynamics.advance(s, road, tables, layout, target_lane, target_speed,
                                                  adversary == "mild", static)
     collision = ego_collision(s, road, tables, neighbours, static)

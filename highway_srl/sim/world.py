@@ -15,6 +15,7 @@ import torch
 
 from highway_srl.constants import D_MAX_M, EPISODE_STEPS, STYLE_NAMES, TRAFFIC_LEVELS, TrafficLevel
 from highway_srl.scenarios import scenario_spec
+from highway_srl.sim.adversary import ADVERSARIES
 from highway_srl.sim.allocator import keep_freed_memory
 from highway_srl.sim.compiled import CompiledStep, inference_mode_when_eager
 from highway_srl.sim.device import check_device
@@ -28,7 +29,6 @@ from highway_srl.sim.state import WorldState
 from highway_srl.sim.step import EAGER, check_command_types, check_command_values
 
 MAX_VEHICLES = 64
-ADVERSARIES = ("mild", "paper")  # group 3: adversary.safe_distance_cut_ins, adversary.paper_cut_ins
 
 
 class World:
