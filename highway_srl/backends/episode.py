@@ -9,8 +9,8 @@ an event mean the same on every backend and follow any change to World's semanti
 - which commanded ego lane changes are accepted: LaneTables.can_change;
 - the adversarial cut-in trigger and its random draw: adversary.cut_ins_ahead_with_room;
 - keeping the flow centred on the ego: recycle.recycle (who moves, to which lane, where, how fast);
-- the ego's collisions (boxes, lane ends, change windows, road edges): contacts.ego_collision;
-- stage flags and success / failure events: contacts.stage_events; termination and truncation as World;
+- the ego's collisions (boxes, lane ends, change windows, road edges): collisions_and_stages.ego_collision;
+- stage flags and success / failure events: collisions_and_stages.stage_events; termination and truncation as World;
 - the neighbour snapshot: snapshot.ego_neighbours, the function behind World.neighbours.
 
 The backend turns the results into commands for its simulator (a forced lane change, a vehicle moved).
@@ -31,7 +31,7 @@ from highway_srl.constants import (
 )
 from highway_srl.scenarios import scenario_spec
 from highway_srl.sim.adversary import cut_ins_ahead_with_room
-from highway_srl.sim.contacts import ego_collision, stage_events
+from highway_srl.sim.collisions_and_stages import ego_collision, stage_events
 from highway_srl.sim.events import StageFlags, StepEvents
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.recycle import recycle
@@ -39,7 +39,7 @@ from highway_srl.sim.road import Road, make_road
 from highway_srl.sim.snapshot import Snapshot, ego_neighbours
 from highway_srl.sim.spawn import Layout, make_layout, spawn
 from highway_srl.sim.state import WorldState
-from highway_srl.sim.traffic_model import CENTRED_M, find_neighbours
+from highway_srl.sim.sv_drivers import CENTRED_M, find_neighbours
 
 FAR_M = 1.0e9  # x of a vehicle that is not on the road right now (never within d_max of anything)
 
@@ -221,7 +221,7 @@ class EpisodeCore:
 
     # ------------------------------------------------------------------ ego events
     def ego_collision(self, frame: Frame, with_vehicles: bool = True) -> bool:
-        """contacts.ego_collision on this frame; with_vehicles=False checks only the corridor (lane ends,
+        """collisions_and_stages.ego_collision on this frame; with_vehicles=False checks only the corridor (lane ends,
         boundaries outside change windows, road edges), for a backend whose simulator checks contacts."""
         ws = self.sync(frame)
         if not with_vehicles:

@@ -13,11 +13,11 @@ import torch
 
 from highway_srl.constants import DT_S, EGO_BRAKE_MAX_MPS2, SV_BRAKE_MAX_MPS2, VEHICLE_LENGTH_M
 from highway_srl.sim import rng
+from highway_srl.sim.idm_mobil import FAR_M, MOBIL_MIN_GAP_M
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.selection import entries, narrow, none_left, ones, put
 from highway_srl.sim.state import WorldState
-from highway_srl.sim.traffic import FAR_M, MOBIL_MIN_GAP_M
-from highway_srl.sim.traffic_model import Neighbours
+from highway_srl.sim.sv_drivers import Neighbours
 
 # Group 3 reading: cut-ins only by SVs wholly ahead of the ego (False) or also alongside it (True)
 ADVERSARIAL_ALONGSIDE = False

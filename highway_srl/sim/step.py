@@ -14,7 +14,7 @@ import torch
 from highway_srl.constants import TrafficLevel
 from highway_srl.sim import dynamics
 from highway_srl.sim.adversary import cut_ins_whatever_the_gaps
-from highway_srl.sim.contacts import ego_collision, stage_events
+from highway_srl.sim.collisions_and_stages import ego_collision, stage_events
 from highway_srl.sim.events import StepEvents
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.recycle import recycle
@@ -30,8 +30,8 @@ def step_state(s: WorldState, road: Road, tables: LaneTables, layout: Layout, le
     static: static shapes, no host reads (the form torch.compile takes in one graph; sim/selection.py)."""
     if adversary == "paper":
         cut_ins_whatever_the_gaps(s, tables, static)
-    sv_collisions, neighbours = dynamics.advance(s, road, tables, layout, target_lane, target_speed,
-                                                 adversary == "mild", static)
+    sv_collisions, neighbours = dynamics.move_vehicles(s, road, tables, layout, target_lane, target_speed,
+                                                       adversary == "mild", static)
     collision = ego_collision(s, road, tables, neighbours, static)
     success, failure = stage_events(s, road)
     recycle(s, road, layout, level, static)
