@@ -73,7 +73,7 @@ SCENARIOS = ("two-lane", "multi-lane", "merge", "exit")
 
 # The rule layer and the adversary of every entry point (train, evaluate, reproduce, the study, the Gymnasium
 # and SB3 envs): the reproduction's, so that a result from any of them compares with the paper's tables.
-# "paper": Eqs. 31-35 as printed (rules.PROFILES); "paper": §4.3's cut-ins as printed (sim.world.ADVERSARIES).
+# "paper": Eqs. 31-35 as printed (rules.PROFILES); "paper": §4.3's cut-ins as printed (sim.adversary.ADVERSARIES).
 DEFAULT_PROFILE = "paper"
 DEFAULT_ADVERSARY = "paper"
 

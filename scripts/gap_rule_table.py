@@ -5,7 +5,7 @@
     OMP_NUM_THREADS=1 .venv/bin/python scripts/gap_rule_table.py --what backends     # about 10 min a rule
 
 Each part runs once per rule (--rules, default "2m,6m"; "none" = no gap check at
-all) by putting that rule in the place of sim/policies.room_to_change and prints one JSON object:
+all) by putting that rule in the place of sim/ego_driver.room_to_change and prints one JSON object:
   world       idm_ego and idm_ego_backend on World, 200 envs' first episodes of merge / exit x A / C / F x
               nominal (seeds 5000+) / adversarial (6000+): success, collision and failure rates in %
   rule-based  the rule-based method's evaluation (evaluate_run, 200 episodes per level A / C / F, nominal
@@ -28,7 +28,7 @@ from pathlib import Path
 import torch
 
 from highway_srl.agents import rule_based
-from highway_srl.sim import World, policies
+from highway_srl.sim import World, ego_driver
 
 
 def rule_6m(gap_a, v_a, gap_b, v_b, v):
@@ -39,11 +39,11 @@ def rule_none(gap_a, v_a, gap_b, v_b, v):
     return torch.ones_like(gap_a, dtype=torch.bool)
 
 
-RULES = {"2m": policies.room_to_change, "6m": rule_6m, "none": rule_none}
+RULES = {"2m": ego_driver.room_to_change, "6m": rule_6m, "none": rule_none}
 
 
 def use(rule: str) -> None:
-    policies.room_to_change = RULES[rule]
+    ego_driver.room_to_change = RULES[rule]
     rule_based.room_to_change = RULES[rule]
 
 
@@ -69,7 +69,7 @@ def world_drivers(envs: int = 200) -> dict:
                 for adversarial in (False, True):
                     world = World(scenario, level, adversarial, envs, "cpu", seed=6000 if adversarial else 5000)
                     key = f"{name} {scenario} {level}{' adv' if adversarial else ''}"
-                    out[key] = first_episodes(world, getattr(policies, name))
+                    out[key] = first_episodes(world, getattr(ego_driver, name))
     return out
 
 
@@ -102,7 +102,7 @@ def backends(seeds=range(10)) -> dict:
                 for seed in seeds:
                     b = make_backend(name, scenario=scenario, traffic=level, seed=seed)
                     for t in range(b.max_steps):
-                        ev = b.step(*policies.idm_ego_backend(b))
+                        ev = b.step(*ego_driver.idm_ego_backend(b))
                         collision += int(ev.collision[0])
                         success += int(ev.success[0])
                         if bool(ev.terminated[0] | ev.truncated[0] | ev.success[0]):

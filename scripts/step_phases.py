@@ -19,17 +19,17 @@ import time
 
 import torch
 
-from highway_srl.sim import World, dynamics, traffic_model
-from highway_srl.sim import world as world_module
+from highway_srl.sim import World, dynamics, sv_drivers
+from highway_srl.sim import step as step_module
 
 # (module, function) pairs timed; each is looked up where the step calls it from
 PHASES = [
-    (traffic_model, "find_neighbours"), (traffic_model, "car_following"), (traffic_model, "yield_to_mergers"),
-    (traffic_model, "abort_unsafe_changes"), (traffic_model, "mobil_lane_changes"),
-    (traffic_model, "occupancy"), (traffic_model, "sorted_order"), (traffic_model, "neighbour_keys"),
-    (traffic_model, "inverse_order"), (dynamics, "ego_control"), (dynamics, "lateral"), (dynamics, "sv_contacts"),
-    (world_module, "ego_collision"), (world_module, "stage_events"), (world_module, "recycle"),
-    (world_module, "spawn"), (dynamics, "advance"), (world_module, "step_state"),
+    (sv_drivers, "find_neighbours"), (sv_drivers, "car_following"), (sv_drivers, "yield_to_mergers"),
+    (sv_drivers, "abort_unsafe_changes"), (sv_drivers, "mobil_lane_changes"),
+    (sv_drivers, "occupancy"), (sv_drivers, "sorted_order"), (sv_drivers, "neighbour_keys"),
+    (sv_drivers, "inverse_order"), (dynamics, "ego_control"), (dynamics, "lateral"), (dynamics, "sv_contacts"),
+    (step_module, "ego_collision"), (step_module, "stage_events"), (step_module, "recycle"),
+    (step_module, "spawn"), (dynamics, "move_vehicles"), (step_module, "step_state"),
 ]
 
 

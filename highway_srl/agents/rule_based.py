@@ -6,7 +6,7 @@ It chooses among A* on a SafetyLayer's model of the step, so it drives every sce
   2. lane-change wish: mandatory changes (merge: off the on-ramp; exit: towards the off-ramp);
      discretionary changes when the IDM acceleration behind SV2 beats the one behind SV1 by MOBIL_GAIN (not
      while near the boundary, never back onto a ramp, only rightwards on exit); either only when the target
-     lane has room by the built-in driver's gap rule (sim/policies.room_to_change on SV2 ahead, SV4 behind);
+     lane has room by the built-in driver's gap rule (sim/ego_driver.room_to_change on SV2 ahead, SV4 behind);
   3. a change under way: with the layer's hold_lane_change (Faster/Idle/Slower keep the target lane) the
      driver continues it with the longitudinal wish, now also behind the target lane's leader SV2; with the
      literal Eq. 34 (they reset the target to C_ID) it keeps asking for LaneChange;
@@ -21,10 +21,10 @@ import torch
 from highway_srl.constants import V_MAX_MPS
 from highway_srl.scenarios import EXIT, MERGE, scenario_spec
 from highway_srl.rules import FASTER, IDLE, LANE_CHANGE, SLOWER, ModelStep, SafetyStep, choose_second, may_use_second
-from highway_srl.sim.policies import EGO_JAM_M, room_to_change
-from highway_srl.sim.traffic import idm_accel
+from highway_srl.sim.ego_driver import EGO_JAM_M, room_to_change
+from highway_srl.sim.idm_mobil import idm_accel
 
-JAM_DISTANCE_M = EGO_JAM_M  # IDM s0 of the ego, shared with the built-in driver (sim/policies.py)
+JAM_DISTANCE_M = EGO_JAM_M  # IDM s0 of the ego, shared with the built-in driver (sim/ego_driver.py)
 A_FASTER_MPS2 = 0.5  # IDM acceleration above which the driver asks for Faster
 A_SLOWER_MPS2 = 1.0  # IDM deceleration above which it asks for Slower
 MOBIL_GAIN_MPS2 = 0.5  # acceleration advantage a discretionary lane change must bring (hysteresis)

@@ -11,7 +11,7 @@ from highway_srl.agents.methods import MoERMSRL
 from highway_srl.agents.registry import make_method
 from highway_srl.constants import DEFAULT_ADVERSARY, DEFAULT_PROFILE
 from highway_srl.rules import control_profile
-from highway_srl.sim.world import ADVERSARIES
+from highway_srl.sim.adversary import ADVERSARIES
 
 
 @dataclass

@@ -26,7 +26,8 @@ from highway_srl.agents.train_config import MAX_SEED, TrainConfig, check_config 
 from highway_srl.constants import OBS_DIM
 from highway_srl.rules.episode import RESULT_FIELDS, EpisodeStats, FinishedEpisodes, episode_row
 from highway_srl.sim import World
-from highway_srl.sim.world import ADVERSARIES, WARM_CALLS, call_settled, compile_options, uses_cuda_graphs
+from highway_srl.sim.adversary import ADVERSARIES
+from highway_srl.sim.compiled import WARM_CALLS, call_settled, compile_options, uses_cuda_graphs
 from highway_srl.sim.state import WorldState
 
 
@@ -351,7 +352,7 @@ class Trainer:
 
 
 def compile_vector_step(trainer: Trainer, how: bool | str, unrolled: bool = False, keep_state: bool | None = None):
-    """trainer.vector_step as torch.compile graphs with no break (how: sim.world.compile_options), the same
+    """trainer.vector_step as torch.compile graphs with no break (how: sim.compiled.compile_options), the same
     numbers as the eager static step:
 
     split (the default): the step up to its updates (Trainer.collect_static), one update round
@@ -374,7 +375,7 @@ def compile_vector_step(trainer: Trainer, how: bool | str, unrolled: bool = Fals
     keeping = state_keeping_call(trainer) if cuda_graphs else (lambda graph, *args: graph(*args))
     # every graph has all its versions once the step learns (Draws.learn never turns False again, and with it
     # whether Draws.update is None is fixed): after WARM_CALLS learning steps, only the guards that tell
-    # versions apart are checked (sim.world.call_settled)
+    # versions apart are checked (sim.compiled.call_settled)
     learning_steps = 0
 
     def call(graph, *args):

@@ -13,7 +13,7 @@ import torch
 
 from highway_srl.backends.episode import EpisodeCore, Frame, FrameQueries, Move
 from highway_srl.constants import EPISODE_STEPS, V_MAX_MPS
-from highway_srl.sim.world import StepEvents
+from highway_srl.sim.events import StepEvents
 
 
 class SingleEnvBackend(FrameQueries):

@@ -7,11 +7,11 @@ an event mean the same on every backend and follow any change to World's semanti
 
 - the initial placement: sim/spawn.spawn (same vehicles, styles, headways, speeds per seed and episode);
 - which commanded ego lane changes are accepted: LaneTables.can_change;
-- the adversarial cut-in trigger and its random draw: adversary.safe_distance_cut_ins;
+- the adversarial cut-in trigger and its random draw: adversary.cut_ins_ahead_with_room;
 - keeping the flow centred on the ego: recycle.recycle (who moves, to which lane, where, how fast);
-- the ego's collisions (boxes, lane ends, change windows, road edges): contacts.ego_collision;
-- stage flags and success / failure events: contacts.stage_events; termination and truncation as World;
-- the neighbour snapshot: world.ego_neighbours, the function behind World.neighbours.
+- the ego's collisions (boxes, lane ends, change windows, road edges): collisions_and_stages.ego_collision;
+- stage flags and success / failure events: collisions_and_stages.stage_events; termination and truncation as World;
+- the neighbour snapshot: snapshot.ego_neighbours, the function behind World.neighbours.
 
 The backend turns the results into commands for its simulator (a forced lane change, a vehicle moved).
 """
@@ -30,16 +30,16 @@ from highway_srl.constants import (
     TRAFFIC_LEVELS,
 )
 from highway_srl.scenarios import scenario_spec
-from highway_srl.sim.adversary import safe_distance_cut_ins
-from highway_srl.sim.contacts import ego_collision, stage_events
+from highway_srl.sim.adversary import cut_ins_ahead_with_room
+from highway_srl.sim.collisions_and_stages import ego_collision, stage_events
+from highway_srl.sim.events import StageFlags, StepEvents
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.recycle import recycle
 from highway_srl.sim.road import Road, make_road
-from highway_srl.sim.snapshot import Snapshot
+from highway_srl.sim.snapshot import Snapshot, ego_neighbours
 from highway_srl.sim.spawn import Layout, make_layout, spawn
 from highway_srl.sim.state import WorldState
-from highway_srl.sim.traffic_model import CENTRED_M, find_neighbours
-from highway_srl.sim.world import StageFlags, StepEvents, ego_neighbours
+from highway_srl.sim.sv_drivers import CENTRED_M, find_neighbours
 
 FAR_M = 1.0e9  # x of a vehicle that is not on the road right now (never within d_max of anything)
 
@@ -178,7 +178,7 @@ class EpisodeCore:
 
     # ------------------------------------------------------------------ adversarial cut-ins
     def adversarial_cut_ins(self, frame: Frame) -> list[int]:
-        """SVs that start a forced cut-in into the ego's lane this step (adversary.safe_distance_cut_ins)."""
+        """SVs that start a forced cut-in into the ego's lane this step (adversary.cut_ins_ahead_with_room)."""
         if not self.adversarial:
             return []
         near = frame.present & (np.abs(frame.lane - frame.lane[0]) == 1) & (frame.x - frame.x[0] < D_MAX_M)
@@ -187,7 +187,7 @@ class EpisodeCore:
             return []  # nothing can trigger; skips the tensor work on most steps
         ws = self.sync(frame)
         before = ws.forced.clone()
-        safe_distance_cut_ins(ws, self.tables, find_neighbours(ws, self.road))
+        cut_ins_ahead_with_room(ws, self.tables, find_neighbours(ws, self.road))
         fired = (ws.forced & ~before)[0].numpy() & frame.present
         self.forced_lane = np.where(fired, int(frame.lane[0]), self.forced_lane)
         return [int(i) for i in np.nonzero(fired)[0]]
@@ -221,7 +221,7 @@ class EpisodeCore:
 
     # ------------------------------------------------------------------ ego events
     def ego_collision(self, frame: Frame, with_vehicles: bool = True) -> bool:
-        """contacts.ego_collision on this frame; with_vehicles=False checks only the corridor (lane ends,
+        """collisions_and_stages.ego_collision on this frame; with_vehicles=False checks only the corridor (lane ends,
         boundaries outside change windows, road edges), for a backend whose simulator checks contacts."""
         ws = self.sync(frame)
         if not with_vehicles:

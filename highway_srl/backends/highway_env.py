@@ -28,8 +28,7 @@ from highway_srl.backends.base import SingleEnvBackend
 from highway_srl.backends.episode import Move
 from highway_srl.constants import DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, LANE_WIDTH_M, STYLES, VEHICLE_LENGTH_M
 from highway_srl.scenarios import EXIT_X, MERGE_X, scenario_spec
-from highway_srl.sim.state import EXIT_INTENT, MERGE_INTENT, NO_INTENT
-from highway_srl.sim.traffic import (
+from highway_srl.sim.idm_mobil import (
     IDM_ACCEL_MPS2,
     IDM_COMFORT_BRAKE_MPS2,
     IDM_DELTA,
@@ -39,12 +38,13 @@ from highway_srl.sim.traffic import (
     MOBIL_THRESHOLD_MPS2,
     SV_BRAKE_LIMIT_MPS2,
 )
+from highway_srl.sim.state import EXIT_INTENT, MERGE_INTENT, NO_INTENT
 
 X_SHIFT_M = 400.0  # our x = highway-env x - X_SHIFT_M
 ROAD_LENGTH_M = 1600.0  # mainline beyond our x = 0
 POLICY_FREQUENCY_HZ = round(1 / DT_S)  # 8: one decision step is our δt = 0.125 s
 MERGE_APPROACH_M = 20.0  # the straight part of the on-ramp in [0, x1); the rest of it is the sine-shaped converge
-MIN_CHANGE_GAP_M = 2.0  # our MOBIL safety gaps (sim/traffic.py, used in sim/traffic_model.py)
+MIN_CHANGE_GAP_M = 2.0  # our MOBIL safety gaps (sim/idm_mobil.py, used in sim/sv_drivers.py)
 
 
 @dataclass(frozen=True)

@@ -36,7 +36,7 @@ from highway_srl.backends.sumo_networks import EdgeSpec, edges_of, links_of, net
 from highway_srl.sim.dynamics import HEADING_MAX_RAD
 from highway_srl.sim.snapshot import Snapshot
 from highway_srl.sim.state import EXIT_INTENT
-from highway_srl.sim.traffic import IDM_ACCEL_MPS2, IDM_COMFORT_BRAKE_MPS2, IDM_DELTA, IDM_TIME_HEADWAY_S, SV_BRAKE_LIMIT_MPS2
+from highway_srl.sim.idm_mobil import IDM_ACCEL_MPS2, IDM_COMFORT_BRAKE_MPS2, IDM_DELTA, IDM_TIME_HEADWAY_S, SV_BRAKE_LIMIT_MPS2
 
 LANE_CHANGE_DURATION_S = 2.5  # our lateral controller takes about 2.5 s for a lane change at 8 m/s
 EGO_SPEED_MODE = 6  # respect max acceleration and deceleration only: no safe speed, no right of way

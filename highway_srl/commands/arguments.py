@@ -114,7 +114,7 @@ def profile_name(text: str) -> str:
 
 
 def adversary_name(text: str) -> str:
-    from highway_srl.sim.world import ADVERSARIES
+    from highway_srl.sim.adversary import ADVERSARIES
 
     if text not in ADVERSARIES:
         raise argparse.ArgumentTypeError(f"unknown adversary {text!r}; choose one of {', '.join(ADVERSARIES)}")

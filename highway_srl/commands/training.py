@@ -19,7 +19,7 @@ from highway_srl.scenarios import check_scenario
 def train_config(args):
     from highway_srl.agents.dqn import DQNConfig
     from highway_srl.agents.train_config import TrainConfig
-    from highway_srl.sim.world import check_device
+    from highway_srl.sim.device import check_device
 
     check_scenario(args.scenario)
     if args.traffic not in TRAFFIC_LEVELS:
@@ -93,7 +93,7 @@ def format_report(report: dict) -> str:
 def _cmd_evaluate(args) -> int:
     from highway_srl.experiments.policy import read_model
     from highway_srl.experiments.runs import claim_outputs, progress_bar
-    from highway_srl.sim.world import check_device
+    from highway_srl.sim.device import check_device
 
     from highway_srl.experiments.evaluate import check_evaluation_memory
 

@@ -27,13 +27,14 @@ from highway_srl.rules import COLLISION_REWARD, PROFILES
 from highway_srl.rules.reward_machine import weighted_sum
 from highway_srl.scenarios import RewardTerm, scenario_spec
 from highway_srl.sim import StageFlags
-from highway_srl.sim.world import ADVERSARIES, MAX_VEHICLES
+from highway_srl.sim.adversary import ADVERSARIES
+from highway_srl.sim.world import MAX_VEHICLES
 
 DEFAULTS = {
     "traffic": "C",  # Table 4's level: number of surrounding vehicles and their initial headways
     "adversarial": False,  # group 3: SVs cut in ahead of the ego
     "profile": DEFAULT_PROFILE,  # control profile of the rule layer (rules.PROFILES)
-    "adversary": DEFAULT_ADVERSARY,  # which cut-ins run when adversarial (sim.world.ADVERSARIES)
+    "adversary": DEFAULT_ADVERSARY,  # which cut-ins run when adversarial (sim.adversary.ADVERSARIES)
     "vehicles_count": None,  # surrounding vehicles; None: the traffic level's
     "style": None,  # None: each SV's driving style drawn from Table 3's three; or one style for all
     "max_episode_steps": EPISODE_STEPS,  # decisions per episode at 8 Hz, then truncated

@@ -71,7 +71,7 @@ def check_sim_memory(scenario: str, traffic: str, envs: int, device: str, advers
 
 def check_memory(need: int, device: str, what: str, fewer: str) -> None:
     """ValueError in one line (what, the device's free memory, fewer) if need bytes do not fit on device."""
-    from highway_srl.sim.world import check_device
+    from highway_srl.sim.device import check_device
 
     dev = check_device(device)
     free = available_bytes(dev)

@@ -23,7 +23,7 @@ import torch
 
 from highway_srl.constants import VEHICLE_WIDTH_M
 from highway_srl.rules.avoidable import ego_avoidable
-from highway_srl.sim.collision import boxes_overlap
+from highway_srl.sim.box_geometry import boxes_overlap
 
 OFF_CENTRE_M = 0.5  # a centre this far off its lane's centre is taken as changing lanes
 

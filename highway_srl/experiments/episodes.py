@@ -8,7 +8,7 @@ from pathlib import Path
 from highway_srl.agents.checkpoint import naming, publish, temp_beside
 from highway_srl.constants import DEFAULT_ADVERSARY
 from highway_srl.sim import World
-from highway_srl.sim.policies import idm_ego
+from highway_srl.sim.ego_driver import idm_ego
 from highway_srl.sim.render import capture, save_gif, save_png
 
 POLICIES = ("idm",)
@@ -56,7 +56,7 @@ def render_episode(run, scenario, traffic, adversarial, policy, seed, out: Path,
         world = World(scenario, traffic, adversarial=adversarial, num_envs=1, seed=seed, adversary=adversary or DEFAULT_ADVERSARY)
     else:
         from highway_srl.backends import make_backend
-        from highway_srl.backends.drivers import idm_ego_backend
+        from highway_srl.sim.ego_driver import idm_ego_backend
 
         world = make_backend(backend, scenario, traffic, adversarial, seed)
         if run is None:  # the built-in driver that only uses the Backend protocol

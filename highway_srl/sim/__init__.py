@@ -2,6 +2,8 @@
 
 from highway_srl.sim.road import Road, make_road
 from highway_srl.sim.snapshot import LANE_END, NO_VEHICLE, Snapshot
-from highway_srl.sim.world import StageFlags, StepEvents, World, check_device
+from highway_srl.sim.events import StageFlags, StepEvents
+from highway_srl.sim.device import check_device
+from highway_srl.sim.world import World
 
 __all__ = ["Road", "make_road", "Snapshot", "LANE_END", "NO_VEHICLE", "World", "StepEvents", "StageFlags", "check_device"]

@@ -1,8 +1,8 @@
 """Adversarial traffic (group 3 of the paper): SVs that cut into the ego's lane.
 
-Two variants (World(adversary=...)): "mild", `safe_distance_cut_ins` (ours: a cut-in ahead of the ego,
-with room, triggered by the gap falling below the ego's kinematic safe distance plus a per-SV offset), and
-"paper", `paper_cut_ins` (§4.3 as printed: the bumper gap below the sampled |d_trig - d_SVi| in {0, 5, 10} m,
+Two variants, by the names World(adversary=...), the CLI and the configs take (ADVERSARIES): "mild",
+`cut_ins_ahead_with_room` (ours: a cut-in ahead of the ego, with room, triggered by the gap falling below the
+ego's kinematic safe distance plus a per-SV offset), and "paper", `cut_ins_whatever_the_gaps` (§4.3 as printed: the bumper gap below the sampled |d_trig - d_SVi| in {0, 5, 10} m,
 ahead, alongside or behind, whatever the gaps). Both count their draws and cut-ins per episode in the world
 state (adv_triggers, adv_cut_ins). docs/paper-notes.md, "The paper's adversary", gives the readings.
 """
@@ -13,11 +13,11 @@ import torch
 
 from highway_srl.constants import DT_S, EGO_BRAKE_MAX_MPS2, SV_BRAKE_MAX_MPS2, VEHICLE_LENGTH_M
 from highway_srl.sim import rng
+from highway_srl.sim.idm_mobil import FAR_M, MOBIL_MIN_GAP_M
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.selection import entries, narrow, none_left, ones, put
 from highway_srl.sim.state import WorldState
-from highway_srl.sim.traffic import FAR_M, MOBIL_MIN_GAP_M
-from highway_srl.sim.traffic_model import Neighbours
+from highway_srl.sim.sv_drivers import Neighbours
 
 # Group 3 reading: cut-ins only by SVs wholly ahead of the ego (False) or also alongside it (True)
 ADVERSARIAL_ALONGSIDE = False
@@ -36,7 +36,7 @@ def kinematic_safe_distance(v_follower: torch.Tensor, v_leader: torch.Tensor) ->
     return (v * DT_S + v * v / (2 * EGO_BRAKE_MAX_MPS2) - u * u / (2 * SV_BRAKE_MAX_MPS2)).clamp(min=0)
 
 
-def safe_distance_cut_ins(s: WorldState, tables: LaneTables, nb: Neighbours, static: bool = False) -> None:
+def cut_ins_ahead_with_room(s: WorldState, tables: LaneTables, nb: Neighbours, static: bool = False) -> None:
     """Group 3: an adjacent-lane SV ahead of the ego (its rear bumper ahead of the ego's front bumper)
     cuts into the ego's lane once its gap falls below d_trig = (the ego's kinematic safe distance to it)
     + offset, offset in {0, 5, 10} m, with probability ABP; each SV evaluates its trigger once per episode.
@@ -91,7 +91,7 @@ def _draw_and_force(s: WorldState, bb: torch.Tensor, ii: torch.Tensor, lane: tor
     s.adv_cut_ins.index_add_(0, bb, ones(bb, sel))
 
 
-def paper_cut_ins(s: WorldState, tables: LaneTables, static: bool = False) -> None:
+def cut_ins_whatever_the_gaps(s: WorldState, tables: LaneTables, static: bool = False) -> None:
     """Group 3 as printed (§4.3): "When the distance between the EV and SV_i falls below |d_trig - d_SVi|,
     the SV initiates a forced lane change with probability ABP ... at most once per episode."
 
@@ -117,3 +117,7 @@ def paper_cut_ins(s: WorldState, tables: LaneTables, static: bool = False) -> No
         sel, bb, ii, el = narrow(sel, keep, bb, ii, el)
         _draw_and_force(s, bb, ii, el, S_PAPER_ADV, sel)
 
+
+# The adversaries by their user-facing names. step_state runs "paper" on the positions at the start of a step,
+# before the traffic moves; the dynamics run "mild" after the SVs' lane decisions (it reads their neighbours).
+ADVERSARIES = {"mild": cut_ins_ahead_with_room, "paper": cut_ins_whatever_the_gaps}

@@ -1,7 +1,7 @@
 """One step of motion: the traffic model's accelerations and lane decisions, the adversary, the ego's
 controller, and the integration with the lateral controller shared by all vehicles.
 
-Events (contacts, collisions, stages) are in sim/contacts.py, recycling in sim/recycle.py; World.step
+Events (contacts, collisions, stages) are in sim/collisions_and_stages.py, recycling in sim/recycle.py; World.step
 runs them in that order.
 """
 
@@ -10,15 +10,15 @@ from __future__ import annotations
 import torch
 
 from highway_srl.constants import DT_S, V_MAX_MPS
-from highway_srl.sim import adversary, traffic_model
-from highway_srl.sim.contacts import sv_contacts
+from highway_srl.sim import adversary, sv_drivers
+from highway_srl.sim.collisions_and_stages import sv_contacts
 from highway_srl.sim.ego import ego_control
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.road import Road
 from highway_srl.sim.selection import entries, flat_index, none_left, put_flat, take_flat
 from highway_srl.sim.spawn import Layout
 from highway_srl.sim.state import WorldState
-from highway_srl.sim.traffic_model import CENTRED_M, Neighbours
+from highway_srl.sim.sv_drivers import CENTRED_M, Neighbours
 
 # Lateral tracking controller on a kinematic model (shared by the ego and the SVs): a desired lateral
 # speed proportional to the lateral error, turned into a desired heading that a rate-limited heading
@@ -40,19 +40,19 @@ UNWIND_MARGIN = 1.5
 SETTLED_M, SETTLED_RAD = 1e-3, 1e-3  # a car this close to its lane's centre line, and aligned, is put on it
 
 
-def advance(s: WorldState, road: Road, tables: LaneTables, layout: Layout, target_lane, target_speed,
-            adversarial, static: bool = False) -> tuple[torch.Tensor, Neighbours]:
+def move_vehicles(s: WorldState, road: Road, tables: LaneTables, layout: Layout, target_lane, target_speed,
+                  adversarial, static: bool = False) -> tuple[torch.Tensor, Neighbours]:
     """Move every vehicle by one step in place.
 
     Returns the number of SV-SV contacts per env (B,) long and the neighbours found at the start of the
     step (which ego_collision uses). static: static shapes and no host reads (see sim/selection.py)."""
-    nb = traffic_model.find_neighbours(s, road, static)
-    accel, near = traffic_model.car_following(s, road, tables, nb, static)
-    accel = traffic_model.yield_to_mergers(s, road, nb, accel, static)
-    traffic_model.abort_unsafe_changes(s, road, nb, accel, static)
-    traffic_model.mobil_lane_changes(s, road, tables, nb, accel, static)
+    nb = sv_drivers.find_neighbours(s, road, static)
+    accel, near = sv_drivers.car_following(s, road, tables, nb, static)
+    accel = sv_drivers.yield_to_mergers(s, road, nb, accel, static)
+    sv_drivers.abort_unsafe_changes(s, road, nb, accel, static)
+    sv_drivers.mobil_lane_changes(s, road, tables, nb, accel, static)
     if adversarial:
-        adversary.safe_distance_cut_ins(s, tables, nb, static)
+        adversary.cut_ins_ahead_with_room(s, tables, nb, static)
     ego_control(s, tables, target_lane, target_speed, accel)
 
     v_new, v_mid = integrate_speed(s.v, accel, DT_S, V_MAX_MPS)

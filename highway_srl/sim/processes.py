@@ -32,6 +32,7 @@ import weakref
 import torch
 
 from highway_srl.interrupts import held, quiet_worker
+from highway_srl.sim.events import STEP_EVENT_DTYPES, StepEvents
 
 SPIN_S = 0.002  # seconds a waiting process polls before it blocks (see above)
 
@@ -51,10 +52,12 @@ def slices(num_envs: int, processes: int) -> list[tuple[int, int]]:
 
 
 class WorldProcesses:
-    """Worker processes that step the envs of `world` in slices (see the module's docstring); event_dtypes:
-    the step's events by name and dtype (world.STEP_EVENT_DTYPES), one shared (B,) buffer each."""
+    """How a World with processes = P > 1 steps: worker processes that step its envs in slices (see the
+    module's docstring); the methods of sim/step.py's EagerSteps, for the one world it was made for."""
 
-    def __init__(self, world, processes: int, event_dtypes: dict[str, torch.dtype]):
+    compiled, shares_state = False, True
+
+    def __init__(self, world, processes: int):
         try:
             ctx = multiprocessing.get_context("fork")
         except ValueError:
@@ -65,7 +68,7 @@ class WorldProcesses:
         self.lane = torch.zeros(b, dtype=torch.long).share_memory_()
         self.speed = torch.zeros(b, dtype=torch.float32).share_memory_()
         self.mask = torch.zeros(b, dtype=torch.bool).share_memory_()
-        self.events = {name: torch.zeros(b, dtype=dtype).share_memory_() for name, dtype in event_dtypes.items()}
+        self.events = {name: torch.zeros(b, dtype=dtype).share_memory_() for name, dtype in STEP_EVENT_DTYPES.items()}
         self.conns, self.procs = [], []
         (lo, hi), *rest = slices(b, processes)
         self.local = (world.envs_view(lo, hi), lo, hi)  # this process steps the first slice itself
@@ -127,6 +130,36 @@ class WorldProcesses:
 
     def close(self) -> None:
         self._finalizer()
+
+    @property
+    def worker_pids(self) -> list[int]:
+        return [p.pid for p in self.procs]
+
+    def step(self, world, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
+        return self._step(world, "step", target_lane, target_speed)
+
+    def step_and_reset(self, world, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
+        return self._step(world, "step_and_reset", target_lane, target_speed)
+
+    def reset(self, world, mask: torch.Tensor | None) -> None:
+        if mask is not None:
+            self.mask.copy_(mask.reshape(world.num_envs))
+        self._on_every_slice(world, "reset_all" if mask is None else "reset")
+
+    def reset_where(self, world, mask: torch.Tensor) -> None:
+        self.mask.copy_(mask.reshape(world.num_envs))
+        self._on_every_slice(world, "reset_where")
+
+    def _step(self, world, op: str, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
+        self.lane.copy_(target_lane)
+        self.speed.copy_(target_speed)
+        self._on_every_slice(world, op)
+        return StepEvents(**{name: buf.clone() for name, buf in self.events.items()})
+
+    def _on_every_slice(self, world, op: str) -> None:
+        """call(op) with the world's settings that a step reads (the workers' views have their own copies)."""
+        self.call(op, {"static": world.static, "adversarial": world.adversarial, "adversary": world.adversary,
+                       "max_steps": world.max_steps})
 
 
 def _exited(proc) -> str:

@@ -12,7 +12,7 @@ import torch
 
 from highway_srl.sim.road import Road
 from highway_srl.sim.snapshot import Snapshot
-from highway_srl.sim.world import StageFlags, StepEvents
+from highway_srl.sim.events import StageFlags, StepEvents
 
 
 class Backend(Protocol):

@@ -8,11 +8,11 @@ import torch
 
 from highway_srl.constants import D_MAX_M, VEHICLE_LENGTH_M, TrafficLevel
 from highway_srl.sim import rng
-from highway_srl.sim.collision import lateral_half_extent
+from highway_srl.sim.box_geometry import lateral_half_extent
+from highway_srl.sim.idm_mobil import occupancy
 from highway_srl.sim.road import Road
 from highway_srl.sim.spawn import EXIT_INTENT_PROB, Layout
 from highway_srl.sim.state import EXIT_INTENT, NO_INTENT, WorldState
-from highway_srl.sim.traffic import occupancy
 
 S_RECYCLE_LANE, S_RECYCLE_INTENT = 21, 23  # random streams (spawn uses 0-7, the adversary 20)
 

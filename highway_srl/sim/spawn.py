@@ -22,9 +22,9 @@ from highway_srl.constants import (
     TrafficLevel,
 )
 from highway_srl.sim import rng
+from highway_srl.sim.idm_mobil import sorted_order
 from highway_srl.sim.road import Road
 from highway_srl.sim.state import EXIT_INTENT, MERGE_INTENT, NO_INTENT, WorldState
-from highway_srl.sim.traffic import sorted_order
 
 EXIT_INTENT_PROB = 0.25  # share of mainline vehicles that take the off-ramp in the exit scenario
 S_EGO_LANE, S_LANE_PHASE, S_SPEED, S_HEADWAY, S_STYLE, S_INTENT, S_OFFSET, S_PHASE = range(8)

@@ -58,3 +58,8 @@ class WorldState:
 
     def to(self, device) -> "WorldState":
         return WorldState(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
+
+
+def astuple_shallow(obj) -> tuple:
+    """A dataclass's fields as a tuple of the same objects (dataclasses.astuple would deep-copy tensors)."""
+    return tuple(getattr(obj, f.name) for f in fields(obj))

@@ -1,101 +1,34 @@
-"""The batched highway world: reset, step and the ego's neighbour query, on CPU or CUDA.
+"""The batched highway world: B episodes of one scenario and traffic level, reset, stepped and queried
+together on CPU or CUDA (World).
 
-A step is a fixed sequence of tensor operations over (B, N); there are no per-vehicle objects and no
-Python loops over envs or vehicles (only over the at most three lanes).
+How a world steps is chosen once, when it is made: eagerly in this process (sim/step.py, the reference),
+as compiled graphs (sim/compiled.py) or in worker processes (sim/processes.py); World's methods check
+their arguments and hand the work to that choice.
 """
 
 from __future__ import annotations
 
 import copy
-import functools
-import math
-from dataclasses import dataclass, fields
+from dataclasses import fields
 
 import torch
 
-from highway_srl.constants import (
-    D_MAX_M,
-    EPISODE_STEPS,
-    STYLE_NAMES,
-    TRAFFIC_LEVELS,
-    VEHICLE_LENGTH_M,
-    TrafficLevel,
-)
+from highway_srl.constants import D_MAX_M, EPISODE_STEPS, STYLE_NAMES, TRAFFIC_LEVELS, TrafficLevel
 from highway_srl.scenarios import scenario_spec
-from highway_srl.sim import dynamics
-from highway_srl.sim.adversary import paper_cut_ins
+from highway_srl.sim.adversary import ADVERSARIES
 from highway_srl.sim.allocator import keep_freed_memory
-from highway_srl.sim.contacts import ego_collision, stage_events
+from highway_srl.sim.compiled import CompiledStep, inference_mode_when_eager
+from highway_srl.sim.device import check_device
+from highway_srl.sim.events import StageFlags, StepEvents
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.processes import WorldProcesses, check_processes
-from highway_srl.sim.recycle import recycle
 from highway_srl.sim.road import Road, make_road
-from highway_srl.sim.snapshot import LANE_END, NO_VEHICLE, Snapshot
+from highway_srl.sim.snapshot import Snapshot, ego_neighbours
 from highway_srl.sim.spawn import Layout, make_layout, spawn
 from highway_srl.sim.state import WorldState
+from highway_srl.sim.step import EAGER, check_command_types, check_command_values
 
 MAX_VEHICLES = 64
-ADVERSARIES = ("mild", "paper")  # group 3: adversary.safe_distance_cut_ins, adversary.paper_cut_ins
-
-
-@dataclass
-class StepEvents:
-    """What happened in one step, per env (B,) bool unless noted."""
-
-    collision: torch.Tensor  # the ego hit a vehicle, a lane end or left the road
-    success: torch.Tensor  # exit: reached the off-ramp's end (terminal); merge: reached the stability zone
-    failure: torch.Tensor  # exit: missed the off-ramp (terminal)
-    terminated: torch.Tensor
-    truncated: torch.Tensor  # the 320-step limit
-    sv_collisions: torch.Tensor  # (B,) long, SV-SV pairs whose boxes overlap after this step (nominal traffic: 0)
-
-
-# StepEvents' fields and dtypes, for those that allocate them before a step (the worker processes' buffers)
-STEP_EVENT_DTYPES = {"collision": torch.bool, "success": torch.bool, "failure": torch.bool, "terminated": torch.bool,
-                     "truncated": torch.bool, "sv_collisions": torch.long}
-
-
-@dataclass
-class StageFlags:
-    """The task's latched stages of the current episodes, (B,) bool each (§4.3's r_merge, r_exit,1, r_exit,2;
-    the names a ScenarioSpec's reward terms and success_flag use)."""
-
-    merged: torch.Tensor  # merge: the ego has reached the stability zone in a mainline lane
-    exit1: torch.Tensor  # exit: it has entered lane 1, next to the off-ramp
-    exit2: torch.Tensor  # exit: it has entered the off-ramp lane 2
-
-    def reward_inputs(self) -> dict[str, torch.Tensor]:
-        """The flags under the rewards' keyword names (r_merge, r_exit1, r_exit2), for scenario_reward and
-        deployment_step_reward."""
-        return {"r_merge": self.merged, "r_exit1": self.exit1, "r_exit2": self.exit2}
-
-
-def check_device(device: str | torch.device) -> torch.device:
-    try:
-        dev = torch.device(device)
-    except (RuntimeError, TypeError):
-        raise ValueError(f"unknown device {device!r}; use cpu, cuda or cuda:N") from None
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError(f"device {device!r} is not available here (no CUDA); use cpu")
-    if dev.type == "cuda" and dev.index is not None and dev.index >= torch.cuda.device_count():
-        raise ValueError(f"device {device!r} does not exist; {torch.cuda.device_count()} CUDA device(s) found")
-    if dev.type not in ("cpu", "cuda"):
-        raise ValueError(f"unsupported device {device!r}; use cpu, cuda or cuda:N")
-    return dev
-
-
-def inference_mode_when_eager(fn):
-    """fn in torch.inference_mode when it runs eagerly (a fifth of a single env's step is autograd bookkeeping
-    otherwise); traced into a caller's graph (the trainer's compiled vector step), fn as it is: aot_autograd
-    fails on an inference-mode region inside a graph ('Cannot set version_counter for inference tensor'), and
-    a graph keeps no autograd bookkeeping of tensors that need no gradient anyway."""
-    inference = torch.inference_mode()(fn)
-
-    @functools.wraps(fn)
-    def run(*args, **kwargs):
-        return fn(*args, **kwargs) if torch.compiler.is_compiling() else inference(*args, **kwargs)
-
-    return run
 
 
 class World:
@@ -106,7 +39,7 @@ class World:
     adversarial is True, "mild" (ours: ahead of the ego, with room, beyond its safe distance) or "paper"
     (§4.3 as printed); both in sim/adversary.py.
 
-    compile: run step and reset as compiled static-shape graphs (see compiled_step): False (eager, the
+    compile: run step and reset as compiled static-shape graphs (sim/compiled.py): False (eager, the
     reference), True (torch.compile; on CUDA with CUDA graphs, mode "reduce-overhead") or a torch.compile
     mode. The compiled step follows eager to float rounding (tests/sim/test_compile.py); eager runs
     reproduce bit for bit. On the CPU it needs a C++ compiler.
@@ -142,21 +75,7 @@ class World:
         compile: bool | str = False,
         processes: int = 1,
     ):
-        scenario_spec(scenario)  # raises the one-line error naming the scenarios
-        if traffic not in TRAFFIC_LEVELS:
-            raise ValueError(f"unknown traffic level {traffic!r}; choose one of {', '.join(TRAFFIC_LEVELS)}")
-        if not isinstance(num_envs, int) or num_envs < 1:
-            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
-        if style is not None and style not in STYLE_NAMES:
-            raise ValueError(f"unknown driving style {style!r}; choose one of {', '.join(STYLE_NAMES)} or none")
-        level = TRAFFIC_LEVELS[traffic]
-        m = level.num_vehicles if num_vehicles is None else num_vehicles
-        if not isinstance(m, int) or m < 1 or m + 1 > MAX_VEHICLES:
-            raise ValueError(f"num_vehicles must be between 1 and {MAX_VEHICLES - 1}, got {m!r}")
-        if not isinstance(max_steps, int) or max_steps < 1:
-            raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
-        if adversary not in ADVERSARIES:
-            raise ValueError(f"unknown adversary {adversary!r}; choose one of {', '.join(ADVERSARIES)}")
+        level, m = check_world_args(scenario, traffic, num_envs, style, num_vehicles, max_steps, adversary)
         self.adversary = adversary
         self.device = check_device(device)
         check_processes(processes, num_envs, compile, self.device)
@@ -169,22 +88,19 @@ class World:
         self.num_envs, self.num_vehicles = num_envs, m + 1
         self.max_steps = max_steps
         self.style = None if style is None else STYLE_NAMES.index(style)
-        if isinstance(seed, int):
-            seeds = torch.arange(num_envs, dtype=torch.long) + seed
-        else:
-            seeds = torch.as_tensor(list(seed), dtype=torch.long)
-            if seeds.shape != (num_envs,):
-                raise ValueError(f"need {num_envs} seeds, got {seeds.shape[0]}")
+        seeds = seed_tensor(seed, num_envs)
         self._lane_tables = LaneTables.of(self.road, self.device)
-        self._processes: WorldProcesses | None = None
-        self.state = spawn(
+        self._state = spawn(
             self.road, level, self.layout, seeds.to(self.device), torch.zeros_like(seeds).to(self.device), self.style
         )
-        self._compiled = compiled_step(self, compile) if compile else None
         # eager steps in the static form (no host read; bit-identical, more work: a sync-free loop on a GPU)
         self.static = False
-        if processes > 1:
-            self._processes = WorldProcesses(self, processes, STEP_EVENT_DTYPES)
+        # how this world steps, chosen once: EAGER, CompiledStep or WorldProcesses (the same methods)
+        self._steps = EAGER
+        if compile:
+            self._steps = CompiledStep(self, compile)
+        elif processes > 1:
+            self._steps = WorldProcesses(self, processes)
 
     @property
     def state(self) -> WorldState:
@@ -193,7 +109,7 @@ class World:
     @state.setter
     def state(self, new: WorldState) -> None:
         """Replace the state; with worker processes, copied into the shared tensors they step (same shapes)."""
-        if self._processes is None:
+        if not self._steps.shares_state:
             self._state = new
             return
         for f in fields(new):
@@ -209,56 +125,30 @@ class World:
         if not 0 <= lo < hi <= self.num_envs:
             raise ValueError(f"envs_view needs 0 <= lo < hi <= {self.num_envs}, got {lo}, {hi}")
         view = copy.copy(self)
-        view.num_envs, view._compiled, view._processes = hi - lo, None, None
+        view.num_envs, view._steps = hi - lo, EAGER
         view._state = WorldState(**{f.name: getattr(self._state, f.name)[lo:hi] for f in fields(self._state)})
         return view
 
     @property
     def worker_pids(self) -> list[int]:
         """The process ids of the P - 1 worker processes (processes = P > 1), else []."""
-        return [] if self._processes is None else [p.pid for p in self._processes.procs]
+        return self._steps.worker_pids
 
     def close(self) -> None:
         """End the worker processes (processes > 1); the world then steps no more. A no-op otherwise."""
-        if self._processes is not None:
-            self._processes.close()
-
-    def _in_processes(self, op: str) -> None:
-        self._processes.call(op, {"static": self.static, "adversarial": self.adversarial,
-                                  "adversary": self.adversary, "max_steps": self.max_steps})
+        self._steps.close()
 
     # ------------------------------------------------------------------ episodes
     @inference_mode_when_eager
     def reset(self, mask: torch.Tensor | None = None) -> None:
         """Start new episodes in the envs where mask (B,) is True (all envs if None)."""
-        s = self.state
-        if self._compiled is not None and mask is not None:
-            self._compiled.reset(mask)
-            return
-        if self._processes is not None:
-            if mask is not None:
-                self._processes.mask.copy_(mask.reshape(self.num_envs))
-            self._in_processes("reset_all" if mask is None else "reset")
-            return
-        idx = torch.arange(self.num_envs, device=self.device) if mask is None else mask.nonzero().squeeze(1)
-        if idx.numel() == 0:
-            return
-        fresh = spawn(self.road, self.level, self.layout, s.seed[idx], s.episode[idx] + 1, self.style)
-        s.index_put(idx, fresh)
+        self._steps.reset(self, mask)
 
     @inference_mode_when_eager
     def reset_where(self, mask: torch.Tensor) -> None:
         """reset(mask) in the static form: a masked select of a full spawn, no host read (the same
         values; compiled worlds always reset this way). Costs a spawn of every env."""
-        if self._compiled is not None:
-            self._compiled.reset(mask.reshape(self.num_envs))
-            return
-        if self._processes is not None:
-            self._processes.mask.copy_(mask.reshape(self.num_envs))
-            self._in_processes("reset_where")
-            return
-        fresh = self.spawn_where(self.state, mask)
-        torch._foreach_copy_(list(astuple_shallow(self.state)), list(astuple_shallow(fresh)))
+        self._steps.reset_where(self, mask)
 
     @inference_mode_when_eager
     def step(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
@@ -267,20 +157,13 @@ class World:
         Runs in inference mode (a fifth of a single env's step is autograd bookkeeping otherwise); the
         state is updated in place, so its tensors stay ordinary ones that callers may edit. The returned
         events are inference tensors: read them, combine them, or clone them before editing in place."""
-        s = self.state
-        target_lane, target_speed = self._commands(target_lane, target_speed)
-        if self._compiled is not None:
-            return self._compiled.step(target_lane, target_speed)
-        if self._processes is not None:
-            return self._step_in_processes("step", target_lane, target_speed)
-        return step_state(s, self.road, self._lane_tables, self.layout, self.level, target_lane, target_speed,
-                          self.active_adversary, self.max_steps, static=self.static)
+        return self._steps.step(self, *self._commands(target_lane, target_speed))
 
-    def _step_in_processes(self, op: str, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
-        self._processes.lane.copy_(target_lane)
-        self._processes.speed.copy_(target_speed)
-        self._in_processes(op)
-        return StepEvents(**{name: buf.clone() for name, buf in self._processes.events.items()})
+    @inference_mode_when_eager
+    def step_and_reset(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
+        """step, then new episodes where it terminated or truncated (the events are the step's): one graph
+        when compiled; eager, a reset only when some env is done (a host read)."""
+        return self._steps.step_and_reset(self, *self._commands(target_lane, target_speed))
 
     @property
     def active_adversary(self) -> str | None:
@@ -304,21 +187,7 @@ class World:
             return False  # traced into a caller's graph: a read would break it
         if self.check_commands is not None:
             return self.check_commands
-        return self._compiled is None and lane.device.type == "cpu" and speed.device.type == "cpu"
-
-    @inference_mode_when_eager
-    def step_and_reset(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
-        """step, then new episodes where it terminated or truncated (the events are the step's): one graph
-        when compiled; eager, a reset only when some env is done (a host read)."""
-        if self._compiled is not None:
-            return self._compiled.step_and_reset(*self._commands(target_lane, target_speed))
-        if self._processes is not None:
-            return self._step_in_processes("step_and_reset", *self._commands(target_lane, target_speed))
-        events = self.step(target_lane, target_speed)
-        done = events.terminated | events.truncated
-        if bool(done.any()):
-            self.reset(done)
-        return events
+        return not self._steps.compiled and lane.device.type == "cpu" and speed.device.type == "cpu"
 
     def spawn_where(self, s: WorldState, mask: torch.Tensor) -> WorldState:
         """State s with fresh episodes (episode + 1) in the envs where mask (B,) is True: a masked select
@@ -361,219 +230,32 @@ class World:
         return ego_neighbours(self.state, self.road, self._lane_tables, current_lane, adjacent_lane, d_max)
 
 
-def check_command_types(lane: torch.Tensor, speed: torch.Tensor, num_envs: int) -> None:
-    """ValueError unless lane holds integers and speed real numbers, num_envs of each (metadata only: no read
-    of the values, so also inside a compiled caller's graph)."""
-    if lane.dtype.is_floating_point or lane.dtype.is_complex or lane.dtype == torch.bool:
-        raise ValueError(f"target_lane must hold integer lane indices, got dtype {lane.dtype}")
-    if speed.dtype.is_complex or speed.dtype == torch.bool:
-        raise ValueError(f"target_speed must hold real numbers (m/s), got dtype {speed.dtype}")
-    for name, t in (("target_lane", lane), ("target_speed", speed)):
-        if t.numel() != num_envs:
-            raise ValueError(f"{name} needs {num_envs} value(s), one per env, got shape {tuple(t.shape)}")
+def check_world_args(scenario: str, traffic: str, num_envs, style: str | None, num_vehicles, max_steps,
+                     adversary: str) -> tuple[TrafficLevel, int]:
+    """World's arguments, or a one-line ValueError; returns the traffic level and the number of SVs."""
+    scenario_spec(scenario)  # raises the one-line error naming the scenarios
+    if traffic not in TRAFFIC_LEVELS:
+        raise ValueError(f"unknown traffic level {traffic!r}; choose one of {', '.join(TRAFFIC_LEVELS)}")
+    if not isinstance(num_envs, int) or num_envs < 1:
+        raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+    if style is not None and style not in STYLE_NAMES:
+        raise ValueError(f"unknown driving style {style!r}; choose one of {', '.join(STYLE_NAMES)} or none")
+    level = TRAFFIC_LEVELS[traffic]
+    m = level.num_vehicles if num_vehicles is None else num_vehicles
+    if not isinstance(m, int) or m < 1 or m + 1 > MAX_VEHICLES:
+        raise ValueError(f"num_vehicles must be between 1 and {MAX_VEHICLES - 1}, got {m!r}")
+    if not isinstance(max_steps, int) or max_steps < 1:
+        raise ValueError(f"max_steps must be a positive integer, got {max_steps!r}")
+    if adversary not in ADVERSARIES:
+        raise ValueError(f"unknown adversary {adversary!r}; choose one of {', '.join(ADVERSARIES)}")
+    return level, m
 
 
-def check_command_values(lane: torch.Tensor, speed: torch.Tensor, num_lanes: int) -> None:
-    """ValueError unless every lane is one of the road's 0..num_lanes-1 and every speed is finite and >= 0."""
-    lane_lo, lane_hi = (v.item() for v in torch.aminmax(lane))
-    if lane_lo < 0 or lane_hi >= num_lanes:
-        raise ValueError(f"target_lane must be a lane of this road, 0..{num_lanes - 1}, got {lane_lo}..{lane_hi}")
-    speed_lo, speed_hi = (v.item() for v in torch.aminmax(speed))  # NaN anywhere makes both NaN
-    if not (speed_lo >= 0 and math.isfinite(speed_hi)):
-        raise ValueError(f"target_speed must be finite and >= 0 m/s, got {speed_lo}..{speed_hi}")
-
-
-def step_state(s: WorldState, road: Road, tables: LaneTables, layout: Layout, level: TrafficLevel,
-               target_lane: torch.Tensor, target_speed: torch.Tensor, adversary: str | None, max_steps: int,
-               static: bool = False) -> StepEvents:
-    """One step of every env of s, in place (see World.step); adversary: see World.active_adversary.
-    static: static shapes, no host reads (the form torch.compile takes in one graph; sim/selection.py)."""
-    if adversary == "paper":
-        paper_cut_ins(s, tables, static)
-    sv_collisions, neighbours = dynamics.advance(s, road, tables, layout, target_lane, target_speed,
-                                                 adversary == "mild", static)
-    collision = ego_collision(s, road, tables, neighbours, static)
-    success, failure = stage_events(s, road)
-    recycle(s, road, layout, level, static)
-    s.t += 1
-    terminated = collision | failure | (success & road.spec.success_terminates)
-    truncated = (s.t >= max_steps) & ~terminated
-    return StepEvents(collision, success, failure, terminated, truncated, sv_collisions)
-
-
-COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
-
-
-def compile_options(how: bool | str, device: torch.device) -> dict:
-    """torch.compile's keywords for a static-shape graph: fullgraph (a graph break is an error), static
-    shapes. how: True (the device's default: CUDA graphs on CUDA, mode "reduce-overhead"; C++ kernels on the
-    CPU), a torch.compile mode, or a backend name ("eager", "aot_eager": graph capture without code
-    generation, for checks). On the CPU, True also makes inductor's wrapper C++ (cpp_wrapper): the graph's
-    kernels are then called from C++ instead of a generated Python function, which made one env's compiled
-    step 1.2-1.4x faster (docs/benchmarks.md), for a longer compilation."""
-    mode, backend, options = None, "inductor", None
-    if how is True:
-        if device.type == "cuda":
-            mode = "reduce-overhead"
-        else:
-            options = {"cpp_wrapper": True}  # torch.compile takes a mode or options, not both
-    elif how in COMPILE_MODES:
-        mode = how
-    else:
-        backend = how
-    # each World or Trainer adds cache entries for its methods' code (self and its constants are guarded
-    # on); dynamo's default limit of 8 would refuse the ninth compiled one of a process under fullgraph
-    torch._dynamo.config.recompile_limit = max(torch._dynamo.config.recompile_limit, 256)
-    return dict(fullgraph=True, mode=mode, backend=backend, dynamic=False, options=options)
-
-
-# A compiled graph's first WARM_CALLS calls (once all its versions exist) check every guard; later ones only
-# those that tell its versions apart (call_settled). CHECK_GUARDS = True: every call checks them all.
-WARM_CALLS = 2
-CHECK_GUARDS = False
-
-
-def call_settled(graph, *args):
-    """graph(*args), dynamo checking only the guards that tell graph's compiled versions apart
-    (torch.compiler.set_stance's skip_guard_eval_unsafe), for a graph whose every version has been compiled
-    and run: the callers (compiled_step, trainer.compile_vector_step) say when that is.
-
-    Why: dynamo checks every guard of a graph (each state tensor's metadata, each attribute the trace read) on
-    every call: 80 us (one env's world step) to 200 us (a training graph) a call on this CPU, and a compiled
-    MoE-RM-SRL training step makes 17 calls at 16 envs (collect, 16 update rounds): 2.8-3.5 ms of host time
-    a vector step, more than its kernels on a GPU (docs/benchmarks.md). Why it is safe here: every graph has
-    static shapes and reads no Python value that changes from call to call once its versions exist (the
-    tests make a recompile an error, with CHECK_GUARDS on); a graph called with a new kind of input would
-    silently run an old version instead of being recompiled, so nothing outside those callers should call
-    this."""
-    if CHECK_GUARDS:
-        return graph(*args)
-    with torch.compiler.set_stance("default", skip_guard_eval_unsafe=True):
-        return graph(*args)
-
-
-def uses_cuda_graphs(options: dict, device: torch.device) -> bool:
-    """Whether a graph compiled with these compile_options replays as CUDA graphs (its outputs are then
-    overwritten by its next replay: copy or consume them first)."""
-    return device.type == "cuda" and options["backend"] == "inductor" and options["mode"] == "reduce-overhead"
-
-
-class compiled_step:  # noqa: N801 (used like a function: compiled_step(world, mode))
-    """World.step and World.reset(mask) of one world as torch.compile graphs of the static step.
-
-    The graphs are pure (state tensors in, new state tensors out); the results are copied into the
-    world's state tensors, which therefore stay the same objects that callers may hold. Under CUDA graphs
-    the graph's outputs are overwritten by its next replay, hence the copy and the events' clone."""
-
-    def __init__(self, world: World, how: bool | str):
-        """how: see compile_options."""
-        self.world = world
-        opts = compile_options(how, world.device)
-        self.cuda_graphs = uses_cuda_graphs(opts, world.device)
-        # torch.compile is lazy: only the graphs a caller uses are compiled
-        self._step = torch.compile(self.pure_step, **opts)
-        self._reset = torch.compile(self.pure_reset, **opts)
-        self._step_reset = torch.compile(self.pure_step_reset, **opts)
-        self._calls = {}  # per graph: each has one version (the world's settings are fixed), warm after WARM_CALLS
-
-    def pure_step(self, state: tuple, target_lane: torch.Tensor, target_speed: torch.Tensor):
-        w = self.world
-        s = WorldState(*(t.clone() for t in state))
-        ev = step_state(s, w.road, w._lane_tables, w.layout, w.level, target_lane, target_speed,
-                        w.active_adversary, w.max_steps, static=True)
-        return astuple_shallow(s), astuple_shallow(ev)
-
-    def pure_reset(self, state: tuple, mask: torch.Tensor):
-        return astuple_shallow(self.world.spawn_where(WorldState(*state), mask))
-
-    def pure_step_reset(self, state: tuple, target_lane: torch.Tensor, target_speed: torch.Tensor):
-        new, ev = self.pure_step(state, target_lane, target_speed)
-        events = StepEvents(*ev)
-        return self.pure_reset(new, events.terminated | events.truncated), ev
-
-    def _call(self, graph, *args):
-        """Run a compiled graph on the world's state; its new state is copied into the state's tensors."""
-        if self.cuda_graphs:
-            torch.compiler.cudagraph_mark_step_begin()
-        calls = self._calls[graph] = self._calls.get(graph, 0) + 1
-        run = call_settled if calls > WARM_CALLS else (lambda g, *a: g(*a))
-        out = run(graph, astuple_shallow(self.world.state), *args)
-        new, ev = out if graph is not self._reset else (out, None)
-        torch._foreach_copy_(list(astuple_shallow(self.world.state)), list(new))
-        if ev is not None:
-            return StepEvents(*(e.clone() for e in ev) if self.cuda_graphs else ev)
-        return None
-
-    def step(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
-        return self._call(self._step, target_lane, target_speed)
-
-    def step_and_reset(self, target_lane: torch.Tensor, target_speed: torch.Tensor) -> StepEvents:
-        return self._call(self._step_reset, target_lane, target_speed)
-
-    def reset(self, mask: torch.Tensor) -> None:
-        self._call(self._reset, mask.reshape(self.world.num_envs))
-
-
-def astuple_shallow(obj) -> tuple:
-    """A dataclass's fields as a tuple of the same objects (dataclasses.astuple would deep-copy tensors)."""
-    return tuple(getattr(obj, f.name) for f in fields(obj))
-
-
-def ego_neighbours(s: WorldState, road: Road, tables: LaneTables, current_lane: torch.Tensor,
-                   adjacent_lane: torch.Tensor, d_max: float = D_MAX_M) -> Snapshot:
-    """SV1..SV4 of the ego: nearest front/rear vehicle in current_lane and adjacent_lane (B,) within d_max.
-
-    Reads s.x, s.y, s.v, s.heading, s.lane (B, N). Lane membership is by the nearest lane centre; 'front'
-    means the SV's centre is ahead of the ego's. The end of a dropped lane ahead appears as a standing
-    vehicle whose rear bumper is at the lane end.
-    """
-    x, lane = s.x[:, 1:], s.lane[:, 1:]
-    ego_x = s.x[:, 0]
-    dx = x - ego_x[:, None]
-    near = dx.abs() <= d_max
-    inf = torch.full_like(dx, float("inf"))
-    slots = []
-    for lane_q in (current_lane, adjacent_lane):
-        in_lane = (lane == lane_q[:, None]) & near
-        front_d, front_i = torch.where(in_lane & (dx > 0), dx, inf).min(1)
-        rear_d, rear_i = torch.where(in_lane & (dx <= 0), -dx, inf).min(1)
-        slots.append((front_d, front_i, lane_q))
-        slots.append((rear_d, rear_i, lane_q))
-    order = (0, 2, 1, 3)  # SV1 front-current, SV2 front-adjacent, SV3 rear-current, SV4 rear-adjacent
-    dist = torch.stack([slots[k][0] for k in order], 1)
-    idx = torch.stack([slots[k][1] for k in order], 1) + 1
-    valid = torch.isfinite(dist)
-    gx = lambda t: torch.gather(t, 1, idx)  # noqa: E731
-    sv_x, sv_y, sv_v, sv_h = gx(s.x), gx(s.y), gx(s.v), gx(s.heading)
-    sv_index = torch.where(valid, idx, NO_VEHICLE)
-    # lane ends ahead (merge on-ramp): a standing obstacle if nearer than the front vehicle
-    end = tables.drop_end_m
-    for k, lane_q in ((0, current_lane), (1, adjacent_lane)):
-        lane_end = end[lane_q.clamp(min=0)]
-        wall_x = lane_end + 0.5 * VEHICLE_LENGTH_M
-        use = (lane_q >= 0) & (wall_x - ego_x <= d_max) & (~valid[:, k] | (wall_x < sv_x[:, k]))
-        use &= torch.isfinite(lane_end) & (wall_x > ego_x)
-        sv_x[:, k] = torch.where(use, wall_x, sv_x[:, k])
-        sv_y[:, k] = torch.where(use, lane_q.float() * road.lane_width_m, sv_y[:, k])
-        sv_v[:, k] = torch.where(use, 0.0, sv_v[:, k])
-        sv_h[:, k] = torch.where(use, 0.0, sv_h[:, k])
-        sv_index[:, k] = torch.where(use, LANE_END, sv_index[:, k])
-        valid[:, k] |= use
-    zero = torch.zeros_like(sv_x)
-    return Snapshot(
-        ego_x=ego_x,
-        ego_y=s.y[:, 0],
-        ego_vx=s.v[:, 0] * torch.cos(s.heading[:, 0]),
-        ego_vy=s.v[:, 0] * torch.sin(s.heading[:, 0]),
-        ego_heading=s.heading[:, 0],
-        ego_lane=s.lane[:, 0],
-        sv_x=torch.where(valid, sv_x, zero),
-        sv_y=torch.where(valid, sv_y, zero),
-        sv_vx=torch.where(valid, sv_v * torch.cos(sv_h), zero),
-        sv_vy=torch.where(valid, sv_v * torch.sin(sv_h), zero),
-        sv_heading=torch.where(valid, sv_h, zero),
-        sv_valid=valid,
-        sv_index=sv_index,
-        current_lane=current_lane,
-        adjacent_lane=adjacent_lane,
-    )
+def seed_tensor(seed: int | list[int], num_envs: int) -> torch.Tensor:
+    """(B,) long seeds: seed + b for an int, else the B given ones (a one-line ValueError for another count)."""
+    if isinstance(seed, int):
+        return torch.arange(num_envs, dtype=torch.long) + seed
+    seeds = torch.as_tensor(list(seed), dtype=torch.long)
+    if seeds.shape != (num_envs,):
+        raise ValueError(f"need {num_envs} seeds, got {seeds.shape[0]}")
+    return seeds

@@ -12,7 +12,7 @@ import torch
 from highway_srl.agents.dqn import DQNConfig
 from highway_srl.agents.train_config import TrainConfig
 from highway_srl.agents.trainer import Trainer
-from highway_srl.sim import world as world_module
+from highway_srl.sim import compiled as compiled_module
 
 
 def _config(method: str = "moe-rm-srl", learning_starts: int = 0, **kw) -> TrainConfig:
@@ -80,12 +80,12 @@ def _follow(how, steps: int, unrolled: bool = False, **kw) -> None:
             # the same graphs for the whole run: nothing the step reads changes from step to step (a recompile
             # is an error; the first graph has a second version for the steps before learning_starts: none
             # here). Every guard is checked in the first half; in the second the graphs run settled, as in a
-            # run (sim.world.call_settled), and must still follow eager.
-            world_module.CHECK_GUARDS = i < steps // 2
+            # run (sim.compiled.call_settled), and must still follow eager.
+            compiled_module.CHECK_GUARDS = i < steps // 2
             with torch._dynamo.config.patch(error_on_recompile=i > 0):
                 episodes[1] += compiled.step()
     finally:
-        world_module.CHECK_GUARDS = False
+        compiled_module.CHECK_GUARDS = False
     assert int(eager.learner.adam_step.sum()) > 0  # updates ran
     torch.testing.assert_close(compiled.learner.online.flat, eager.learner.online.flat, rtol=1e-4, atol=1e-5)
     torch.testing.assert_close(compiled.learner.exp_avg_sq, eager.learner.exp_avg_sq, rtol=1e-3, atol=1e-9)
@@ -110,7 +110,7 @@ def test_compiled_vector_step_follows_the_eager_static_step(method, scenario, ad
 
 def test_compiled_step_follows_eager_across_the_start_of_learning():
     """The first graph gets its second version when the step starts to learn (Draws.learn), so its calls
-    run settled (only the guards telling versions apart: sim.world.call_settled) only after that: were they
+    run settled (only the guards telling versions apart: sim.compiled.call_settled) only after that: were they
     settled earlier, the version without updates would go on running and the weights would not move."""
     kw = {"learning_starts": 12, "traffic": "C"}  # 4 envs: the third vector step is the first to learn
     eager, compiled = Trainer(_config(**kw), drain_every=4), Trainer(_config(compile="aot_eager", **kw), drain_every=4)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import torch
 
 from highway_srl.sim import World
-from highway_srl.sim.collision import boxes_overlap
-from highway_srl.sim.policies import idm_ego
+from highway_srl.sim.box_geometry import boxes_overlap
+from highway_srl.sim.ego_driver import idm_ego
 
 
 def brute_sv_contacts(world: World) -> torch.Tensor:

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from highway_srl.constants import VEHICLE_LENGTH_M
 from highway_srl.sim import World
+from highway_srl.sim.adversary import ADVERSARIES, cut_ins_ahead_with_room, cut_ins_whatever_the_gaps
 from sim_helpers import drive
 
 
@@ -77,3 +79,10 @@ def test_kinematic_safe_distance_golden_values():
     # 8 * 0.125 + 64 / 12 - 36 / 12 = 3.3333; a standing ego needs none; equal speeds: one step of reaction
     expected = torch.tensor([1.0 + 64 / 12 - 3.0, 0.0, 1.25])
     assert torch.allclose(kinematic_safe_distance(v_ego, v_sv), expected, atol=1e-5)
+
+
+def test_the_adversaries_are_chosen_by_their_user_facing_names():
+    # the names World, the CLI and the configs take; a world refuses any other in one line naming them
+    assert ADVERSARIES == {"mild": cut_ins_ahead_with_room, "paper": cut_ins_whatever_the_gaps}
+    with pytest.raises(ValueError, match="unknown adversary 'evil'; choose one of mild, paper"):
+        World(adversary="evil")

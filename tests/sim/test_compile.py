@@ -9,8 +9,9 @@ import pytest
 import torch
 
 from highway_srl.sim import World
-from highway_srl.sim.policies import idm_ego
-from highway_srl.sim.world import astuple_shallow, step_state
+from highway_srl.sim.ego_driver import idm_ego
+from highway_srl.sim.state import astuple_shallow
+from highway_srl.sim.step import step_state
 
 # (scenario, adversary): None nominal, "mild" or "paper" (World's adversary)
 VARIANTS = [(sc, adv) for sc in ("two-lane", "multi-lane", "merge", "exit") for adv in (None, "mild")]
@@ -70,7 +71,7 @@ def test_static_step_is_bit_identical_to_the_compact_step_in_eager(scenario, adv
 def test_compiled_step_is_one_graph_and_no_break(scenario, adversarial):
     world = _world(scenario, adversarial, traffic="C", seed=0, compile="eager")
     lane, speed = world._commands(world.ego_lane, torch.full((ENVS,), 8.0))
-    explain = torch._dynamo.explain(world._compiled.pure_step_reset)
+    explain = torch._dynamo.explain(world._steps.pure_step_reset)
     with torch.inference_mode():
         out = explain(astuple_shallow(world.state), lane, speed)
     assert (out.graph_count, out.graph_break_count) == (1, 0), out.break_reasons

@@ -1,4 +1,4 @@
-"""The built-in ego drivers' one gap rule (sim/policies.room_to_change): golden values, and the World driver,
+"""The built-in ego drivers' one gap rule (sim/ego_driver.room_to_change): golden values, and the World driver,
 the backends' driver and the rule-based method all change lanes exactly when it gives room."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import torch
 from highway_srl.agents.rule_based import NO_WISH, lane_change_wish
 from highway_srl.constants import VEHICLE_LENGTH_M
 from highway_srl.sim import World
-from highway_srl.sim.policies import CLOSING_TIME_S, HEADWAY_S, MIN_GAP_M, idm_ego, idm_ego_backend, room_to_change
+from highway_srl.sim.ego_driver import CLOSING_TIME_S, HEADWAY_S, MIN_GAP_M, idm_ego, idm_ego_backend, room_to_change
 from highway_srl.sim.road import MERGE_X
 from sim_helpers import clear_road
 

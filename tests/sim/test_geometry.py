@@ -10,8 +10,8 @@ from hypothesis import assume, event, given, settings
 from hypothesis import strategies as st
 
 from highway_srl.constants import VEHICLE_LENGTH_M, VEHICLE_WIDTH_M
-from highway_srl.sim.collision import boxes_overlap, front_x_in_band, lateral_half_extent
-from highway_srl.sim.traffic import approx_half_width
+from highway_srl.sim.box_geometry import boxes_overlap, front_x_in_band, lateral_half_extent
+from highway_srl.sim.idm_mobil import approx_half_width
 
 L, W = VEHICLE_LENGTH_M, VEHICLE_WIDTH_M
 

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from highway_srl.sim import World, rng
-from highway_srl.sim.policies import idm_ego
+from highway_srl.sim.ego_driver import idm_ego
 
 pytestmark = [
     pytest.mark.gpu,

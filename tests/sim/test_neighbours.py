@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from highway_srl.constants import D_MAX_M, SCENARIOS, VEHICLE_LENGTH_M
 from highway_srl.sim import LANE_END, NO_VEHICLE, World
-from highway_srl.sim.traffic import (
+from highway_srl.sim.idm_mobil import (
     followers_of,
     inverse_order,
     lane_neighbours,

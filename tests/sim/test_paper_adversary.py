@@ -8,7 +8,7 @@ from highway_srl.agents.registry import make_method
 from highway_srl.constants import VEHICLE_LENGTH_M
 from highway_srl.sim import World
 from highway_srl.sim.lane_tables import LaneTables
-from highway_srl.sim.adversary import paper_cut_ins
+from highway_srl.sim.adversary import cut_ins_whatever_the_gaps
 from highway_srl.sim.state import WorldState
 
 W = 3.5
@@ -42,7 +42,7 @@ def fired(world) -> bool:
 def test_trigger_is_the_bumper_gap_below_the_sampled_threshold(offset, gap, fires):
     """|d_trig - d_SVi| in {0, 5, 10} m against the bumper gap |Δx| - L: 0 m fires only alongside."""
     world, tables = staged(sv=(0, 1, gap), offset=offset)
-    paper_cut_ins(world.state, tables)
+    cut_ins_whatever_the_gaps(world.state, tables)
     assert fired(world) is fires
     counts = world.adversary_counts()
     assert counts["triggers"].tolist() == [int(fires)] and counts["cut_ins"].tolist() == [int(fires)]
@@ -51,33 +51,33 @@ def test_trigger_is_the_bumper_gap_below_the_sampled_threshold(offset, gap, fire
 def test_an_sv_behind_or_alongside_also_cuts_in_whatever_the_gap():
     for ahead, gap in ((-1, 3.0), (1, -5.0)):  # 3 m behind; exactly alongside
         world, tables = staged(sv=(0, ahead, gap), offset=5.0)
-        paper_cut_ins(world.state, tables)
+        cut_ins_whatever_the_gaps(world.state, tables)
         assert fired(world)
 
 
 def test_the_trigger_is_drawn_once_per_episode_with_the_styles_probability():
     world, tables = staged(sv=(0, 1, 1.0), offset=5.0, abp=0.0)
-    paper_cut_ins(world.state, tables)
+    cut_ins_whatever_the_gaps(world.state, tables)
     assert not fired(world) and not bool(world.state.trigger_used[0, 1])  # ABP 0: not a candidate
     world, tables = staged(sv=(0, 1, 1.0), offset=5.0, abp=1e-9)  # drawn, does not fire
-    paper_cut_ins(world.state, tables)
+    cut_ins_whatever_the_gaps(world.state, tables)
     assert not fired(world) and bool(world.state.trigger_used[0, 1])
     world.state.adversarial_prob[0, 1] = 1.0
-    paper_cut_ins(world.state, tables)
+    cut_ins_whatever_the_gaps(world.state, tables)
     assert not fired(world)  # already drawn this episode
     assert world.adversary_counts()["triggers"].tolist() == [1] and world.adversary_counts()["cut_ins"].tolist() == [0]
 
 
 def test_only_adjacent_lanes_and_never_into_a_lane_that_ends():
     world, tables = staged(scenario="multi-lane", ego_lane=0, sv=(2, 1, 1.0))  # two lanes away
-    paper_cut_ins(world.state, tables)
+    cut_ins_whatever_the_gaps(world.state, tables)
     assert not fired(world)
     world, tables = staged(scenario="multi-lane", ego_lane=1, sv=(2, 1, 1.0))  # from the right
-    paper_cut_ins(world.state, tables)
+    cut_ins_whatever_the_gaps(world.state, tables)
     assert fired(world)
     merging = World("merge").road.zones["merging"]
     world, tables = staged(scenario="merge", ego_x=sum(merging) / 2, ego_lane=2, sv=(1, 1, 1.0))
-    paper_cut_ins(world.state, tables)
+    cut_ins_whatever_the_gaps(world.state, tables)
     assert not fired(world)  # the ego is on the on-ramp, which ends: no SV is sent there
 
 

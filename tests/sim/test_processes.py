@@ -13,9 +13,9 @@ import pytest
 import torch
 
 from highway_srl.sim import World
-from highway_srl.sim.policies import idm_ego
+from highway_srl.sim.ego_driver import idm_ego
+from highway_srl.sim.events import STEP_EVENT_DTYPES
 from highway_srl.sim.processes import slices
-from highway_srl.sim.world import STEP_EVENT_DTYPES
 
 ENVS = 7  # not a multiple of the processes: slices of unequal size
 

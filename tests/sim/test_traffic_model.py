@@ -8,7 +8,7 @@ import torch
 
 from highway_srl.constants import DT_S, SCENARIOS, SV_BRAKE_MAX_MPS2
 from highway_srl.sim import World
-from highway_srl.sim.traffic_model import find_neighbours
+from highway_srl.sim.sv_drivers import find_neighbours
 from sim_helpers import brute_ego_overlap, brute_sv_contacts, drive, keep_lane
 
 

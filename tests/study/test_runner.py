@@ -175,14 +175,6 @@ def test_report_only_writes_the_report_of_the_jobs_done_so_far_and_runs_nothing(
     assert not (tmp_path / "new").exists() and (tmp_path / "busy" / "notes.txt").read_text() == "mine"
 
 
-def test_backend_flag_is_a_deprecated_alias_of_executor_with_a_one_line_note(tmp_path, capsys):
-    rc, err = _cli(capsys, "--budget", "smoke", "--backend", "slurm", "--out", str(tmp_path / "new"))
-    assert rc == 2 and len(err) == 2 and "deprecated" in err[0] and "unknown executor 'slurm'" in err[1]
-    rc, err = _cli(capsys, "--budget", "smoke", "--backend", "ray", "--executor", "local", "--out", str(tmp_path / "n"))
-    assert rc == 2 and len(err) == 2 and "disagree" in err[1]
-    assert not (tmp_path / "new").exists() and not (tmp_path / "n").exists()
-
-
 def test_a_study_made_with_other_budget_settings_is_refused(tmp_path, monkeypatch):
     import dataclasses
 

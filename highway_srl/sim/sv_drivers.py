@@ -2,7 +2,7 @@
 MOBIL lane changes (with aborts), as functions over (state, road, lane tables, neighbours).
 
 The formulas and the neighbour scans they use (IDM terms, lane occupancy, leaders, followers) are in
-sim/traffic.py; this module decides, per step, which vehicle follows whom and who changes lanes.
+sim/idm_mobil.py; this module decides, per step, which vehicle follows whom and who changes lanes.
 """
 
 from __future__ import annotations
@@ -13,12 +13,8 @@ from dataclasses import dataclass
 import torch
 
 from highway_srl.constants import VEHICLE_LENGTH_M
-from highway_srl.sim.collision import CONTACT_GAP_M, front_x_in_band
-from highway_srl.sim.lane_tables import LaneTables
-from highway_srl.sim.road import Road
-from highway_srl.sim.selection import entries, flat_index, narrow, none_left, put, put_flat
-from highway_srl.sim.state import EXIT_INTENT, MERGE_INTENT, NO_INTENT, WorldState
-from highway_srl.sim.traffic import (
+from highway_srl.sim.box_geometry import CONTACT_GAP_M, front_x_in_band
+from highway_srl.sim.idm_mobil import (
     ABORT_BRAKE_MPS2,
     ABORT_EGO_BRAKE_MPS2,
     ABORT_GAP_M,
@@ -42,6 +38,10 @@ from highway_srl.sim.traffic import (
     sorted_order,
     take_flat,
 )
+from highway_srl.sim.lane_tables import LaneTables
+from highway_srl.sim.road import Road
+from highway_srl.sim.selection import entries, flat_index, narrow, none_left, put, put_flat
+from highway_srl.sim.state import EXIT_INTENT, MERGE_INTENT, NO_INTENT, WorldState
 
 DECISION_PERIOD = 8  # SVs reconsider lane changes once a second
 CENTRED_M = 0.3  # closer than this to its lane's centre a car counts as centred (may decide, is released)
@@ -73,7 +73,7 @@ class Neighbours:
     leader: torch.Tensor
     x_pad: torch.Tensor
     v_pad: torch.Tensor
-    behind_keys: torch.Tensor  # (K, B, N + 1) in x order, see traffic.neighbour_keys
+    behind_keys: torch.Tensor  # (K, B, N + 1) in x order, see idm_mobil.neighbour_keys
     rank: torch.Tensor  # (B, N) position of each vehicle in x order
 
     def follower(self, k: torch.Tensor, b: torch.Tensor, i: torch.Tensor) -> torch.Tensor:

@@ -29,11 +29,11 @@ import torch
 
 from highway_srl.constants import DT_S, V_MAX_MPS, VEHICLE_LENGTH_M
 from highway_srl.scenarios import EXIT, MERGE
-from highway_srl.sim.collision import front_x_in_band, lateral_half_extent
+from highway_srl.sim.box_geometry import front_x_in_band, lateral_half_extent
+from highway_srl.sim.idm_mobil import LANE_CHANGE_TIME_S, OCCUPANCY_MARGIN_M, idm_accel
 from highway_srl.sim.protocol import Backend
 from highway_srl.sim.road import Road
-from highway_srl.sim.traffic import LANE_CHANGE_TIME_S, OCCUPANCY_MARGIN_M, idm_accel
-from highway_srl.sim.traffic_model import CENTRED_M, COMMITTED_M, WALL_JAM_CHANGING_M
+from highway_srl.sim.sv_drivers import CENTRED_M, COMMITTED_M, WALL_JAM_CHANGING_M
 from highway_srl.sim.world import World
 
 EGO_JAM_M = 2 * VEHICLE_LENGTH_M  # IDM s0 of the ego: a cautious style's desired headway

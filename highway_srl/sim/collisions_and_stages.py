@@ -6,12 +6,12 @@ from __future__ import annotations
 import torch
 
 from highway_srl.scenarios import EXIT, MERGE
-from highway_srl.sim.collision import CONTACT_REACH_M, boxes_overlap, front_x_in_band, lateral_half_extent
+from highway_srl.sim.box_geometry import CONTACT_REACH_M, boxes_overlap, front_x_in_band, lateral_half_extent
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.road import Road
-from highway_srl.sim.state import WorldState
 from highway_srl.sim.selection import take_flat
-from highway_srl.sim.traffic_model import Neighbours
+from highway_srl.sim.state import WorldState
+from highway_srl.sim.sv_drivers import Neighbours
 
 EDGE_TOLERANCE_M = 0.5  # how far the ego's side may reach past the road's outer edge before it is a collision
 
