@@ -71,10 +71,14 @@ class Result:
 def job_episodes(folder: Path, job: Job) -> list[dict]:
     """A job's training episodes (episodes.jsonl), every row checked (records.read_episode_log): a damaged
     row is a one-line error naming the file and line. The text after the last newline, a row a running job
-    is appending, is left out."""
+    is appending, is left out while the job runs; once it finished (metrics.json) such a line is damage."""
     from highway_srl.experiments.train import max_episode_step
 
-    rows, _ = read_episode_log(folder / "episodes.jsonl", job.seeds, max_episode_step(job.train_config()))
+    path = folder / "episodes.jsonl"
+    rows, note = read_episode_log(path, job.seeds, max_episode_step(job.train_config()))
+    if note is not None and (folder / "metrics.json").exists():
+        raise ValueError(f"{path} ends in a cut-off line although its job finished (metrics.json): the log is "
+                         "damaged; restore it or delete the job's folder to run it again")
     return rows
 
 

@@ -78,6 +78,8 @@ DAMAGE = {  # name: (file under the job folder or the study, how it is damaged, 
     "episode-nan": ("episodes.jsonl", lambda p: _edit_first_line(p, lambda r: r.update(avg_speed=NAN)),
                     "episodes.jsonl line 1 is damaged: the row: avg_speed must be a finite number, got nan"),
     "episode-garbage-line": ("episodes.jsonl", lambda p: _garbage(p), "episodes.jsonl line 2 is damaged: not JSON"),
+    "episode-cut-off-last-line": ("episodes.jsonl", lambda p: p.write_bytes(p.read_bytes()[:-5]),
+                                  "episodes.jsonl ends in a cut-off line although its job finished"),
 }
 NAN = float("nan")
 
