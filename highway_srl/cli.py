@@ -35,7 +35,7 @@ def _scenario(p: argparse.ArgumentParser, default: str | None = "two-lane") -> N
 
 
 def _cmd_render(args) -> int:
-    from highway_srl.experiments.episodes import render_episode
+    from highway_srl.experiments.renderings import render_episode
     from highway_srl.experiments.runs import claim_outputs, run_folder
 
     if args.run is not None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import torch
 
-from highway_srl.backends.episode import EpisodeCore, Frame, FrameQueries, Move
+from highway_srl.backends.bookkeeping import EpisodeCore, Frame, FrameQueries, Move
 from highway_srl.constants import EPISODE_STEPS, V_MAX_MPS
 from highway_srl.sim.events import StepEvents
 

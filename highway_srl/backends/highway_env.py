@@ -7,7 +7,7 @@ config, the exit through the arguments of its road builder). We then replace the
 the ego is a ControlledVehicle driven by its own speed and lane-keeping controllers through target_speed
 and target_lane_index; the surrounding vehicles are IDMVehicles with the parameters of our traffic model
 and Table 3's styles, placed by our spawn. highway-env moves and collides everything (its bicycle model,
-IDM, MOBIL, polygon collisions); backends/episode.py does the paper's bookkeeping, as for SUMO.
+IDM, MOBIL, polygon collisions); backends/bookkeeping.py does the paper's bookkeeping, as for SUMO.
 
 Frame: highway-env's x runs along every road here; ours is x_he - X_SHIFT_M (its roads start at 0, ours
 need room behind the ego). Its lanes are 4 m wide (a class constant, not configurable), ours 3.5 m: a
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from highway_srl.backends.base import SingleEnvBackend
-from highway_srl.backends.episode import Move
+from highway_srl.backends.bookkeeping import Move
 from highway_srl.constants import DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, LANE_WIDTH_M, STYLES, VEHICLE_LENGTH_M
 from highway_srl.scenarios import EXIT_X, MERGE_X, scenario_spec
 from highway_srl.sim.idm_mobil import (

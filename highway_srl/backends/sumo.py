@@ -3,7 +3,7 @@
 SUMO moves every vehicle: the surrounding traffic with its IDM car-following model and LC2013 lane
 changes (continuous, --lanechange.duration), the ego through TraCI commands (setSpeed, changeLane) with
 SUMO's safety checks switched off so that it can crash. What the paper defines on top of the motion
-(initial placement, adversarial trigger, recycling, stage events, the snapshot) is backends/episode.py,
+(initial placement, adversarial trigger, recycling, stage events, the snapshot) is backends/bookkeeping.py,
 shared with highway-env and equal to our World's.
 
 Frame: the networks (backends/sumo_networks.py) put SUMO's X on our x and our lane k's centre at
@@ -31,7 +31,7 @@ from highway_srl.constants import (
     VEHICLE_WIDTH_M,
 )
 from highway_srl.backends.base import SingleEnvBackend
-from highway_srl.backends.episode import FAR_M, Move
+from highway_srl.backends.bookkeeping import FAR_M, Move
 from highway_srl.backends.sumo_networks import EdgeSpec, edges_of, links_of, network_path, sumo_binary
 from highway_srl.sim.dynamics import HEADING_MAX_RAD
 from highway_srl.sim.snapshot import Snapshot

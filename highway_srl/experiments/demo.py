@@ -36,7 +36,7 @@ def run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int = 0, ove
 def _run_demo(out: Path, steps: int, envs: int, episodes: int, seed: int, overwrite: bool) -> Path:
     from highway_srl.agents.dqn import DQNConfig
     from highway_srl.agents.train_config import TrainConfig
-    from highway_srl.experiments.episodes import drawn, render_episode
+    from highway_srl.experiments.renderings import drawn, render_episode
     from highway_srl.experiments.evaluate import evaluate_run
     from highway_srl.experiments.train import train_run
 

@@ -349,7 +349,7 @@ def replay_case(case: Case, profile: str | None = None, substitute: bool = False
 def render_case(case: Case, out: str | Path, profile: str | None = None, overwrite: bool = False) -> list[Path]:
     """The case's episode as a GIF (and a PNG of its middle frame beside it), each frame titled with the
     action taken and the actions the rule layer allowed; an existing GIF or PNG only with overwrite."""
-    from highway_srl.experiments.episodes import draw_episode
+    from highway_srl.experiments.renderings import draw_episode
 
     out = Path(out)
     if out.suffix.lower() != ".gif":

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import torch
 
-from highway_srl.backends.episode import EpisodeCore
+from highway_srl.backends.bookkeeping import EpisodeCore
 from highway_srl.constants import D_MAX_M, V_MAX_MPS, VEHICLE_LENGTH_M
 from highway_srl.sim.ego_driver import idm_ego_backend
 from highway_srl.sim.snapshot import LANE_END, NO_VEHICLE

@@ -9,7 +9,7 @@ import torch
 
 from backend_contract import check_merge_episode_succeeds, check_rear_end_collision, check_snapshot_invariants
 from highway_srl.backends import BACKENDS, make_backend, missing_modules
-from highway_srl.backends.episode import EpisodeCore, Frame
+from highway_srl.backends.bookkeeping import EpisodeCore, Frame
 from highway_srl.backends.sumo_networks import edges_of, links_of
 from highway_srl.constants import SCENARIOS
 from highway_srl.sim.road import make_road

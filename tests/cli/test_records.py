@@ -327,7 +327,7 @@ def test_render_refuses_an_existing_gif_or_png_unless_overwrite(capsys, tmp_path
 
 
 def test_a_drawing_that_fails_leaves_the_file_that_was_there(tmp_path):
-    from highway_srl.experiments.episodes import drawn
+    from highway_srl.experiments.renderings import drawn
 
     gif = tmp_path / "e.gif"
     gif.write_bytes(b"the good GIF")
