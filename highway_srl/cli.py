@@ -80,9 +80,45 @@ def _bench_train(args) -> tuple[dict, str]:
     return result, line
 
 
+# bench all: the figures of docs/benchmarks.md that one command refreshes (what it measures, bench's arguments)
+ALL_BENCHES = (
+    ("Simulator, 4,096 envs, eager", ["sim", "--envs", "4096", "--steps", "200"]),
+    ("Simulator, one env, eager", ["sim", "--envs", "1", "--steps", "1000"]),
+    ("Training MoE-RM-SRL, 16 envs, one seed", ["train", "--envs", "16", "--steps", "150"]),
+)
+
+
+def _bench_all(args) -> tuple[list, str]:
+    """Every bench of ALL_BENCHES on args.device: the results, and one Markdown row each in the form of
+    docs/benchmarks.md's table (what, figure, command, machine, commit)."""
+    import torch
+
+    from highway_srl.experiments import bench
+    from highway_srl.experiments.runs import commit
+
+    info = bench.machine()
+    where = f"{info['cpu']} ({info['cpu_kernels']}), {torch.get_num_threads()} thread(s)"
+    head = commit()
+    code = f"{head[:7]}{' (dirty)' if head.endswith('-dirty') else ''}" if head else f"highway-srl {__version__}"
+    parser, results, rows = build_parser(), [], []
+    for what, argv in ALL_BENCHES:
+        one = parser.parse_args(["bench", *argv, "--device", args.device])
+        result, line = (_bench_sim if one.what == "sim" else _bench_train)(one)
+        command = f"highway-srl bench {' '.join(argv)}"
+        results.append({"row": what, "command": command, **result})
+        rows.append(f"| {what} | {line} | `{command}` | {where} | {code} |")
+    return results, "\n".join(rows)
+
+
 def _cmd_bench(args) -> int:
     from highway_srl.experiments import bench
 
+    if args.what == "all":
+        if args.contended:
+            raise ValueError("--contended measures one bench: give sim or train with it")
+        result, line = _bench_all(args)
+        print(json.dumps(result) if args.json else line)
+        return 0
     run = _bench_sim if args.what == "sim" else _bench_train
     if not args.contended:
         result, line = run(args)
@@ -125,7 +161,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_render)
 
     p = sub.add_parser("bench", help="measure throughput")
-    p.add_argument("what", choices=["sim", "train"])
+    p.add_argument("what", choices=["sim", "train", "all"],
+                   help="all: the standard figures, one Markdown row each for docs/benchmarks.md")
     _scenario(p)
     p.add_argument("--method", default="moe-rm-srl")
     p.add_argument("--envs", type=positive, default=4096)

@@ -1,4 +1,4 @@
-"""One intra-op thread per process by default (--threads, OMP_NUM_THREADS override), and bench --contended."""
+"""One intra-op thread per process by default (--threads, OMP_NUM_THREADS override), bench --contended and bench all."""
 
 from __future__ import annotations
 
@@ -43,3 +43,20 @@ def test_bench_contended_reports_idle_and_contended(capsys, restore_threads):
     assert result["neighbours"] >= 1
     assert result["idle"]["env_steps_per_s"] > 0 and result["contended"]["env_steps_per_s"] > 0
     assert result["ratio"] == pytest.approx(result["contended"]["env_steps_per_s"] / result["idle"]["env_steps_per_s"])
+
+
+def test_bench_all_prints_one_table_row_per_bench(capsys, monkeypatch, restore_threads):
+    """bench all: the standard figures as docs/benchmarks.md's rows (what, figure, command, machine, commit)."""
+    import highway_srl.cli as cli
+
+    monkeypatch.setattr(cli, "ALL_BENCHES", (("tiny sim", ["sim", "--envs", "4", "--steps", "5"]),
+                                             ("tiny train", ["train", "--envs", "2", "--steps", "3"])))
+    assert main(["bench", "all"]) == 0
+    rows = capsys.readouterr().out.strip().splitlines()
+    assert [r.split(" | ")[0] for r in rows] == ["| tiny sim", "| tiny train"]
+    assert all(r.count(" | ") == 4 and r.endswith(" |") for r in rows)
+    assert "`highway-srl bench sim --envs 4 --steps 5`" in rows[0] and "env-steps/s" in rows[1]
+    assert main(["bench", "all", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [(r["row"], r["what"]) for r in rows] == [("tiny sim", "sim"), ("tiny train", "train")]
+    assert main(["bench", "all", "--contended"]) == 2
