@@ -95,9 +95,10 @@ def _bench_all(args) -> tuple[list, str]:
 
     from highway_srl.experiments import bench
     from highway_srl.experiments.runs import commit
+    from highway_srl.study.runner import cpuinfo
 
     info = bench.machine()
-    where = f"{info['cpu']} ({info['cpu_kernels']}), {torch.get_num_threads()} thread(s)"
+    where = f"{cpuinfo('model name') or info['cpu']} ({info['cpu_kernels']}), {torch.get_num_threads()} thread(s)"
     head = commit()
     code = f"{head[:7]}{' (dirty)' if head.endswith('-dirty') else ''}" if head else f"highway-srl {__version__}"
     parser, results, rows = build_parser(), [], []
