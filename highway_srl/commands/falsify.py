@@ -32,13 +32,24 @@ def _cmd_falsify(args) -> int:
         scenes=tuple(x.strip() for x in args.scenes.split(",") if x.strip()), levels=tuple(args.levels),
         modes=tuple(modes[m] for m in names), profile=args.profile or "safe", policy=args.policy,
         episodes=args.episodes, envs=args.envs, seed=args.seed, steps=args.steps, adversary=args.adversary)
-    report = fz.falsify(settings, args.out, processes=args.processes)
+    if args.learn_steps is not None and args.policy != fz.LEARNED:
+        raise ValueError("--learn-steps goes with --policy learned")
+    if args.policy == fz.LEARNED:
+        from highway_srl.experiments.adversary import AdversaryConfig, falsify_learned
+
+        config = AdversaryConfig() if args.learn_steps is None else AdversaryConfig(learn_steps=args.learn_steps)
+        report = falsify_learned(settings, config, args.out, processes=args.processes)
+    else:
+        report = fz.falsify(settings, args.out, processes=args.processes)
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
     print(f"{report['episodes']:,} episodes ({settings.profile} profile, {settings.policy} ego): "
           f"{report['collisions']:,} collisions, {report['ego_avoidable']:,} ego-avoidable; 95 % upper bound on the "
           f"per-episode rate of ego-avoidable collisions {report['ego_avoidable_rate_upper_95']:.3g}")
+    for t in report.get("adversary", {}).get("training", []):
+        print(f"  adversary trained on {t['scene']}: {t['learn_steps']:,} steps in {t['seconds']:.0f} s, "
+              f"{t['collisions']:,} collisions ({t['ego_avoidable']:,} ego-avoidable) in {t['episodes']:,} episodes")
     for reason, n in report["by_reason"].items():
         print(f"  {n:6,d}  {reason}")
     for case in report["cases"]:
@@ -47,7 +58,7 @@ def _cmd_falsify(args) -> int:
 
 
 def _add_falsify(sub) -> None:
-    from highway_srl.experiments.falsify import POLICIES
+    from highway_srl.experiments.falsify import LEARNED, POLICIES
 
     p = sub.add_parser("falsify", help="search for ego-avoidable collisions of the rule layer; replay a case",
                        description="Random (or adversarial) allowed actions over scenes x levels x nominal/"
@@ -58,8 +69,12 @@ def _add_falsify(sub) -> None:
     p.add_argument("--modes", default="nominal,adversarial", help="nominal, adversarial or both (default both)")
     p.add_argument("--profile", type=profile_name, default=None,
                    help="control profile: safe (default) or paper; with --replay: the case's own unless given")
-    p.add_argument("--policy", choices=POLICIES, default="uniform", help="the ego: uniform among the allowed "
-                   "actions, greedy-ttc (the allowed action with the soonest predicted contact) or exg (ExG's gate)")
+    p.add_argument("--policy", choices=(*POLICIES, LEARNED), default="uniform", help="the ego: uniform among the "
+                   "allowed actions, greedy-ttc (the allowed action with the soonest predicted contact), exg (ExG's "
+                   "gate) or learned (a DQN over the allowed actions rewarded for ego-avoidable collisions, trained "
+                   "per scene for --learn-steps first)")
+    p.add_argument("--learn-steps", type=positive, default=None, metavar="N", help="with --policy learned: "
+                   "environment steps of the adversary's training per scene (default 2e4)")
     p.add_argument("--adversary", type=adversary_name, default="paper", help="group-3 cut-ins of adversarial mode")
     p.add_argument("--episodes", type=positive, default=256, help="episodes per scene, level and mode")
     p.add_argument("--envs", type=positive, default=256, help="episodes stepped together")

@@ -33,6 +33,7 @@ from highway_srl.scenarios import check_scenario
 from highway_srl.sim import World
 
 POLICIES = ("uniform", "greedy-ttc", "exg")
+LEARNED = "learned"  # an ego trained first (experiments.adversary), handed to falsify as `policies`
 NO_CONTACT_S = 1e6  # a predicted time to collision when nothing closes in
 
 
@@ -56,8 +57,8 @@ class FalsifySettings:
             if level not in TRAFFIC_LEVELS:
                 raise ValueError(f"unknown traffic level {level!r}; choose from {', '.join(TRAFFIC_LEVELS)}")
         control_profile(self.profile)
-        if self.policy not in POLICIES:
-            raise ValueError(f"unknown policy {self.policy!r}; choose one of {', '.join(POLICIES)}")
+        if self.policy not in (*POLICIES, LEARNED):
+            raise ValueError(f"unknown policy {self.policy!r}; choose one of {', '.join((*POLICIES, LEARNED))}")
         for name in ("episodes", "envs", "steps"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
@@ -162,14 +163,16 @@ class _Step:
 
 
 def sweep_batch(scene: str, level: str, adversarial: bool, settings: FalsifySettings, seed: int, envs: int,
-                **layer_options) -> tuple[dict, list[Case]]:
-    """One batch of `envs` episodes (world seed `seed`): its counts and one Case per collision."""
+                pick=None, **layer_options) -> tuple[dict, list[Case]]:
+    """One batch of `envs` episodes (world seed `seed`): its counts and one Case per collision. pick(view,
+    generator) -> (B,) actions: the ego (None: choose by settings.policy)."""
     world = World(scene, level, adversarial, envs, "cpu", seed, max_steps=settings.steps,
                   adversary=settings.adversary)
     layer = SafetyLayer(world.road, profile=settings.profile, **layer_options)
     gen = torch.Generator().manual_seed(seed)
     trace = DecisionTrace(_AllowedActions())
-    actions, collided, changed = drive(world, layer, lambda step, view: choose(settings.policy, view, gen), trace)
+    pick = pick or (lambda view, g: choose(settings.policy, view, g))
+    actions, collided, changed = drive(world, layer, lambda step, view: pick(view, gen), trace)
     cases = [Case(scene, level, adversarial, settings.adversary, settings.profile, seed, rec["env"], settings.steps,
                   actions[rec["env"], :rec["step"] + 1].tolist(), cause_of(rec), rec["ego_avoidable"], rec)
              for rec in trace.records]
@@ -224,22 +227,26 @@ def add_counts(total: dict, part: dict) -> dict:
     return total
 
 
-def falsify(settings: FalsifySettings, out: str | Path | None = None, progress=None, processes: int = 1) -> dict:
+def falsify(settings: FalsifySettings, out: str | Path | None = None, progress=None, processes: int = 1,
+            policies: dict | None = None) -> dict:
     """The breadth search of the module docstring; the report (dict). out: a folder for one case JSON per
     cause found (scene and cause deduplicated; the report lists them) and report.json.
     progress(done, total), if given, is called after each batch. processes: batches run in this many
     forked worker processes of one thread each (1: in this process); a batch depends only on its
     scene, level, mode and seed, and the results are merged in plan order, so the report is the same for
-    any count (the unit of work is a batch: --envs below --episodes gives the workers more to share)."""
+    any count (the unit of work is a batch: --envs below --episodes gives the workers more to share).
+    policies: {scene: pick(view, generator) -> (B,) actions}, the ego of policy "learned"
+    (experiments.adversary.falsify_learned trains it)."""
     settings.check()
+    if (settings.policy == LEARNED) != (policies is not None):
+        raise ValueError(f"policy {LEARNED!r} and a trained ego per scene go together (experiments.adversary)")
     if not isinstance(processes, int) or processes < 1:
         raise ValueError(f"processes must be a positive integer, got {processes!r}")
     if out is not None:
-        check_output_folder(Path(out))
-        if (Path(out) / "report.json").exists():
-            raise ValueError(f"--out {str(out)!r} already holds a falsify report; choose another folder")
+        check_report_folder(Path(out))
     plan = [(scene, adv, level) for scene in settings.scenes for adv in settings.modes for level in settings.levels]
-    jobs = [(scene, level, adversarial, settings, settings.seed + start, min(settings.envs, settings.episodes - start))
+    jobs = [(scene, level, adversarial, settings, settings.seed + start, min(settings.envs, settings.episodes - start),
+             (policies or {}).get(scene))
             for scene, adversarial, level in plan for start in range(0, settings.episodes, settings.envs)]
     batches = len(jobs) // len(plan)
     cells, kept, total = [], {}, {}
@@ -264,6 +271,13 @@ def falsify(settings: FalsifySettings, out: str | Path | None = None, progress=N
     else:
         report["cases"] = [{"cause": c.cause, "ego_avoidable": c.ego_avoidable} for c in kept.values()]
     return report
+
+
+def check_report_folder(out: Path) -> None:
+    """Refuse, before any work, an --out that is a file or already holds a falsify report."""
+    check_output_folder(out)
+    if (out / "report.json").exists():
+        raise ValueError(f"--out {str(out)!r} already holds a falsify report; choose another folder")
 
 
 def _sweep_job(job: tuple) -> tuple[dict, list[Case]]:
