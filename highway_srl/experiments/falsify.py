@@ -238,8 +238,9 @@ def falsify(settings: FalsifySettings, out: str | Path | None = None, progress=N
     policies: {scene: pick(view, generator) -> (B,) actions}, the ego of policy "learned"
     (experiments.adversary.falsify_learned trains it)."""
     settings.check()
-    if (settings.policy == LEARNED) != (policies is not None):
-        raise ValueError(f"policy {LEARNED!r} and a trained ego per scene go together (experiments.adversary)")
+    trained = set(policies or {})
+    if (settings.policy == LEARNED and not trained >= set(settings.scenes)) or (settings.policy != LEARNED and trained):
+        raise ValueError(f"policy {LEARNED!r} and a trained ego for every scene go together (experiments.adversary)")
     if not isinstance(processes, int) or processes < 1:
         raise ValueError(f"processes must be a positive integer, got {processes!r}")
     if out is not None:

@@ -109,8 +109,12 @@ def test_a_short_learned_search_under_paper_finds_an_ego_avoidable_collision_tha
 
 def test_bad_input_is_refused_before_any_training(tmp_path):
     settings = fz.FalsifySettings(levels=("F",), modes=(False,), policy=fz.LEARNED, episodes=4, envs=4, steps=8)
-    with pytest.raises(ValueError, match="trained ego per scene"):
+    with pytest.raises(ValueError, match="trained ego for every scene"):
         fz.falsify(settings)
+    with pytest.raises(ValueError, match="trained ego for every scene"):
+        fz.falsify(settings, policies={"merge": lambda view, gen: view.primary.mask.long().argmax(1)})
+    with pytest.raises(ValueError, match="trained ego for every scene"):
+        fz.falsify(fz.FalsifySettings(), policies={"two-lane": lambda view, gen: view.primary.mask.long().argmax(1)})
     with pytest.raises(ValueError, match="learn-steps must be a positive integer"):
         adv.falsify_learned(settings, adv.AdversaryConfig(learn_steps=0))
     with pytest.raises(ValueError, match="explore must be"):
@@ -133,3 +137,13 @@ def test_the_cli_lists_the_learned_adversary_and_refuses_a_bad_learn_steps_in_on
         assert main(["falsify", *bad]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "learn-steps" in err[0]
+
+
+def test_worker_processes_give_the_same_report():
+    settings = fz.FalsifySettings(levels=("F",), modes=(False,), profile="paper", policy=fz.LEARNED, episodes=8,
+                                  envs=4, steps=24, seed=0)
+    one, two = (adv.falsify_learned(settings, adv.AdversaryConfig(learn_steps=300, envs=4), processes=n)
+                for n in (1, 2))
+    for report in (one, two):
+        report["adversary"]["training"][0].pop("seconds")
+    assert one == two and one["episodes"] == 8
