@@ -9,9 +9,9 @@ rewarded for ego-avoidable collisions, trained first by experiments.adversary) c
 Every collision is classified by the decision trace (experiments.collisions.DecisionTrace: kind, decision
 class, ego-avoidable verdict of rules.avoidable). The report gives the episodes, the collisions by cause, the
 ego-avoidable count and the 95 % upper bound on the per-episode rate of ego-avoidable collisions (3/N with
-none, else the exact one-sided Clopper-Pearson bound). Each cause's first counterexample is kept as a replayable case: the
-world's seed and env, the settings, and the ego's actions, which replay_case drives again in a world of one
-env (env b of a batch depends only on its own seed, sim.World).
+none, else the exact one-sided Clopper-Pearson bound). Each cause's first counterexample is kept as a
+replayable case: the world's seed and env, the settings, and the ego's actions, which replay_case drives
+again in a world of one env (env b of a batch depends only on its own seed, sim.World).
 """
 
 from __future__ import annotations
