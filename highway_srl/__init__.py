@@ -6,7 +6,11 @@
     world = highway_srl.World("two-lane", num_envs=4096)   # the raw batched simulator
 """
 
-from highway_srl.scenarios import ENV_IDS  # leaf data, no torch; scenario -> <name> of highway-srl/<name>-v0
+from highway_srl.interrupts import quiet_start
+
+quiet_start()  # first: run as the command, Ctrl-C while the imports below run is one line (interrupts.py)
+
+from highway_srl.scenarios import ENV_IDS  # noqa: E402 - leaf data, no torch; scenario -> <name> of highway-srl/<name>-v0
 
 __version__ = "0.1.0"
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from highway_srl import __version__
 from highway_srl.constants import SCENARIOS, TRAFFIC_LEVELS
-from highway_srl.interrupts import stop_reason, terminations_raised
+from highway_srl.interrupts import interrupts_raised, stop_reason
 
 
 class Parser(argparse.ArgumentParser):
@@ -212,7 +212,7 @@ def _thread_error(args) -> None:
 def main(argv: list[str] | None = None) -> int:
     threading.excepthook = _thread_error
     try:
-        with terminations_raised():  # `kill` ends the command as Ctrl-C does, with its own word and status
+        with interrupts_raised():  # `kill` ends the command as Ctrl-C does, with its own word and status
             return _run(argv)
     except KeyboardInterrupt as err:  # at any moment, parsing included; workers stay quiet (interrupts.py)
         word, code = stop_reason(err)

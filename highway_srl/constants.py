@@ -72,7 +72,10 @@ TRAFFIC_LEVELS: dict[str, TrafficLevel] = {
 SCENARIOS = ("two-lane", "multi-lane", "merge", "exit")
 
 # The rule layer and the adversary of every entry point (train, evaluate, reproduce, the study, the Gymnasium
-# and SB3 envs): the reproduction's, so that a result from any of them compares with the paper's tables.
+# and SB3 envs) and the defaults of the library's World and SafetyLayer (what bench sim and play run): the
+# reproduction's, so that a result from any of them compares with the paper's tables. Defaults rather than
+# required arguments: with one value everywhere, leaving an argument out runs what every entry point runs (no
+# default misleads), and any other value is named where it is passed.
 # "paper": Eqs. 31-35 as printed (rules.PROFILES); "paper": §4.3's cut-ins as printed (sim.adversary.ADVERSARIES).
 DEFAULT_PROFILE = "paper"
 DEFAULT_ADVERSARY = "paper"

@@ -7,7 +7,8 @@ action set A through the road's own rules (rules/raw.py), without any safety che
 once started carries on until the other arrow is pressed (a tap commits, as a driver's indicator would).
 
 The run folder holds what every method's does, so human runs enter the same tables:
-  config.json     {"config": {"method": "manual", scenario, traffic, adversarial, seeds, ...}, version, commit}
+  config.json     {"config": {"method": "manual", scenario, traffic, adversarial, profile, adversary, seeds, ...},
+                  version, commit}
   episodes.jsonl  one line per finished episode, the fields of a training episode (train.py): seed, step,
                   return (the paper's training reward: r_RM, -320 on collision), length, collision,
                   avg_speed, success, deploy_reward (R_r)
@@ -164,7 +165,7 @@ def play(
     world = World(scenario, traffic, adversarial, num_envs=1, seed=seed)  # validates scenario and traffic
     layer = RawSafetyLayer(world.road, five_actions=True, hold_lane_change=True)
     config = {"method": "manual", "scenario": scenario, "traffic": traffic, "adversarial": adversarial,
-              "seeds": [seed], "episodes": episodes, "decision_hz": fps}
+              "profile": layer.mapped.profile, "adversary": world.adversary, "seeds": [seed], "episodes": episodes, "decision_hz": fps}
     open_display(pygame, wait_for_key)  # before the run folder: a refusal leaves nothing behind
     try:
         out.mkdir(parents=True, exist_ok=True)

@@ -147,7 +147,14 @@ def read_metrics(path: Path) -> dict:
     for seed, values in data["per_seed"].items():
         check_fields(values, SEED_METRICS, f"{path}: per_seed.{seed}")
     check_fields(data["mean"], MEAN_METRICS, f"{path}: mean", tuple(MEAN_METRICS))
+    if "collision_verdicts" in data:  # runs trained before the verdicts have none
+        verdicts = check_fields(data["collision_verdicts"], {}, f"{path}: collision_verdicts")
+        check_fields(verdicts.get("all"), VERDICT_COUNTS, f"{path}: collision_verdicts.all")
     return data
+
+
+# train.collision_verdicts: the training collisions split by the ego-avoidable verdict (rules.avoidable)
+VERDICT_COUNTS = {"collisions": "count", "ego_avoidable": "count", "unavoidable": "count", "not_judged": "count"}
 
 
 ESTIMATE = {"value": "number", "low": "number", "high": "number"}
@@ -172,3 +179,8 @@ def check_level(values, where: str) -> None:
     for name, spec in (("C_r", RATE), ("avg_speed", ESTIMATE), ("R_r", ESTIMATE), ("R_s", RATE)):
         if name != "R_s" or name in values:
             check_fields(values.get(name), spec, f"{where}.{name}")
+    if values.get("collisions") is not None:  # the census; its verdicts since they were judged
+        check_fields(values["collisions"], CENSUS_COUNTS, f"{where}.collisions", ("ego_avoidable", "unavoidable"))
+
+
+CENSUS_COUNTS = {"collisions": "count", "ego_avoidable": "count", "unavoidable": "count"}

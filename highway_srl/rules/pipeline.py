@@ -20,6 +20,7 @@ from dataclasses import dataclass, fields
 import torch
 
 from highway_srl.constants import (
+    DEFAULT_PROFILE,
     DT_S,
     EGO_BRAKE_MAX_MPS2,
     LANE_WIDTH_M,
@@ -191,8 +192,9 @@ def choose_second(q_primary: torch.Tensor, q_second: torch.Tensor, two_models: t
 class SafetyLayer:
     """Batched rule machinery for one road (see the module docstring for the call order).
 
-    profile: "safe" (today's default: our safety additions on) or "paper" (Eqs. 31-35 as printed plus the
-    hold below); see ControlProfile. Each addition can still be set on its own (None: the profile's value).
+    profile: "paper" (Eqs. 31-35 as printed plus the hold below) or "safe" (our safety additions on); see
+    ControlProfile. Its default is every entry point's (constants.DEFAULT_PROFILE, the reproduction's): a
+    layer made without it masks and maps as train, evaluate and the envs do. Each addition can still be set on its own (None: the profile's value).
     literal_sd: use the printed Eqs. 21-27 instead of the sound safe distance; grouped_rule_mapping: the
     Eq. 32 reading (see mappings.rule_mapping); hold_lane_change: Faster/Idle/Slower keep the previous
     target lane ("the lateral plan remains unchanged") instead of the literal Eq. 34 T* = C_ID, in both
@@ -209,7 +211,7 @@ class SafetyLayer:
         self,
         road: Road,
         *,
-        profile: str = "safe",
+        profile: str = DEFAULT_PROFILE,
         literal_sd: bool = False,
         d_acc_m: float = D_ACC_M,
         eps_s_m: float = EPS_S_M,

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import torch
 
-from highway_srl.constants import D_ML_M, DT_S, EGO_BRAKE_MAX_MPS2, SV_BRAKE_MAX_MPS2, VEHICLE_LENGTH_M
+from highway_srl.constants import D_ML_M, DEFAULT_PROFILE, DT_S, EGO_BRAKE_MAX_MPS2, SV_BRAKE_MAX_MPS2, VEHICLE_LENGTH_M
 from highway_srl.rules.mappings import NO_LANE, LaneModel, crossing_allowed, fill_defaults, lane_exists, target_speed
 from highway_srl.rules.observation import OBS_NAMES, build_observation, ego_progress_feature
 from highway_srl.rules.pipeline import FRONT_SLOTS, ModelStep, SafetyLayer, SafetyStep, where_tree, control_profile
@@ -77,7 +77,7 @@ class RawSafetyLayer:
         *,
         five_actions: bool = True,
         hold_lane_change: bool = False,
-        profile: str = "safe",
+        profile: str = DEFAULT_PROFILE,  # SafetyLayer's default
         literal_sd: bool = False,
         d_acc_m: float = D_ACC_M,
         standstill_gap_m: float | None = None,

@@ -13,7 +13,7 @@ from dataclasses import fields
 
 import torch
 
-from highway_srl.constants import D_MAX_M, EPISODE_STEPS, STYLE_NAMES, TRAFFIC_LEVELS, TrafficLevel
+from highway_srl.constants import DEFAULT_ADVERSARY, D_MAX_M, EPISODE_STEPS, STYLE_NAMES, TRAFFIC_LEVELS, TrafficLevel
 from highway_srl.scenarios import scenario_spec
 from highway_srl.sim.adversary import ADVERSARIES
 from highway_srl.sim.allocator import keep_freed_memory
@@ -37,7 +37,8 @@ class World:
     seed: an int (env b gets seed + b) or a sequence of B ints. Env b's episodes depend only on its own
     seed, not on the batch size or the device's other envs. adversary: which group-3 cut-ins run when
     adversarial is True, "mild" (ours: ahead of the ego, with room, beyond its safe distance) or "paper"
-    (§4.3 as printed); both in sim/adversary.py.
+    (§4.3 as printed); both in sim/adversary.py. Its default is every entry point's (constants.DEFAULT_ADVERSARY,
+    the reproduction's): a World made without it runs the cut-ins that train, evaluate and the envs run.
 
     compile: run step and reset as compiled static-shape graphs (sim/compiled.py): False (eager, the
     reference), True (torch.compile; on CUDA with CUDA graphs, mode "reduce-overhead") or a torch.compile
@@ -71,7 +72,7 @@ class World:
         style: str | None = None,
         num_vehicles: int | None = None,
         max_steps: int = EPISODE_STEPS,
-        adversary: str = "mild",
+        adversary: str = DEFAULT_ADVERSARY,
         compile: bool | str = False,
         processes: int = 1,
     ):

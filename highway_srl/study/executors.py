@@ -4,7 +4,6 @@ or a Ray cluster (run_ray)."""
 from __future__ import annotations
 
 import os
-import signal
 import socket
 import time
 import traceback
@@ -135,13 +134,13 @@ def run_local(jobs: list[Job], root: Path, device: str, workers: int, on_result,
                 except Exception as err:  # noqa: BLE001 - e.g. the job could not be sent to the worker
                     result = {"status": "failed", "message": f"{type(err).__name__}: {err}", "wall_s": None}
                 on_result(job, result)
-        except BaseException:
+        except BaseException:  # Ctrl-C or `kill` (which may have reached this process alone)
             pool.shutdown(wait=False, cancel_futures=True)
-            for child in mp.active_children():  # `kill` reached this process alone: end the jobs as Ctrl-C does
-                try:
-                    os.kill(child.pid, signal.SIGINT)
-                except ProcessLookupError:  # it ended meanwhile
-                    pass
+            # end the workers at once: one still starting holds SIGINT and SIGTERM until exit_with_parent,
+            # seconds of imports away, and the pool's exit would wait for it; a running job ends as after
+            # Ctrl-C (exit_at_once: no clean-up either) and resumes from its last checkpoint
+            for child in mp.active_children():
+                child.kill()
             raise
 
 

@@ -6,7 +6,8 @@ ours. Spread over runs is the sample standard deviation over seeds (the paper's 
 C_r, R_r, R_s pool every run's episodes, with the 95% intervals of highway_srl.rules.metrics.
 
 One short builder per table of the paper (5, 6, multi-lane, groups 1-3, training) and the cell renderers they
-share; the results they read are study/results.py's, the table type and its formats study/table.py's.
+share; the results they read are study/results.py's, the table type and its formats study/table.py's, the
+collision tables study/collision_tables.py's.
 """
 
 from __future__ import annotations
@@ -14,10 +15,10 @@ from __future__ import annotations
 from typing import Callable
 
 from highway_srl.study import paper_numbers as paper
-from highway_srl.experiments.collisions import CREEP, FORBIDDEN, LANE_CHANGE_CYCLE, OTHER
 from highway_srl.study.jobs import (ABLATION_SCENE, ABLATIONS, GROUP1_METHODS, GROUP2_SCENES, GROUP3_SCENES,
                                            METHOD_LABELS, MULTILANE_SCENES, OURS, SCENES, TABLE5_METHODS,
                                            TABLE5_SCENES, TRAIN_TRAFFIC)
+from highway_srl.study.collision_tables import collision_verdicts, collisions
 from highway_srl.study.results import Result, Results
 from highway_srl.study.table import Column, Table, fmt
 
@@ -351,64 +352,18 @@ def training_curves(results: Results) -> tuple[Table, dict]:
     return table, series
 
 
-def collisions(results: Results) -> Table:
-    """What the deployment collisions were, per job and level that had any (evaluate's census)."""
-    order = {k: i for i, k in enumerate(SCENES)}, {k: i for i, k in enumerate(METHOD_LABELS)}
-    rows = []
-    for res in sorted(results, key=lambda r: (order[0].get(r.job.scene, 99), order[1].get(r.job.method, 99),
-                                              r.job.options)):
-        levels = (res.evaluation or {}).get("levels", {}) if res.done else {}
-        for level, lv in levels.items():
-            c = lv.get("collisions")
-            if not c or not c["collisions"]:  # none, or an evaluation written before the census
-                continue
-            kinds, decided = c["by_kind"], c.get("by_decision")  # by_decision: evaluations since the trace
-            rows.append({"scene": SCENES[res.job.scene].label, "scene_key": res.job.scene, "method": res.job.label,
-                         "method_key": res.job.method, "level": level, "episodes": lv["episodes"],
-                         "collisions": c["collisions"], **{k: kinds.get(k, 0) for k in COLLISION_KINDS},
-                         **{k: c.get(k) for k in ("while_ego_changing", "sv_changing", "sv_forced_cut_in",
-                                                  "mean_ego_speed", "mean_sv_speed")},
-                         **{key: (decided or {}).get(name) for key, name in DECISION_COLUMNS.items()}})
-    cols = [Column("scene", "scene"), Column("scene_key", "scene key"), Column("method", "method"),
-            Column("method_key", "method key"), Column("level", "level"), Column("episodes", "episodes", "int"),
-            Column("collisions", "collisions", "int"),
-            Column("front", "ego into the car ahead", "int"), Column("rear", "hit from behind", "int"),
-            Column("side", "side contact", "int"), Column("road", "road (lane end, barrier, edge)", "int"),
-            Column("while_ego_changing", "while the ego changed lanes", "int"),
-            Column("sv_changing", "SV changing lanes", "int"),
-            Column("sv_forced_cut_in", "SV in a forced cut-in", "int"),
-            Column("mean_ego_speed", "ego speed at contact (m/s)", "f2"),
-            Column("mean_sv_speed", "SV speed at contact (m/s)", "f2"),
-            *(Column(key, f"decisions: {name}", "int") for key, name in DECISION_COLUMNS.items())]
-    decisions = Column("decisions", "through which decision: forbidden / lane change at R*1 = 0 / creep / other",
-                       render=lambda r: " / ".join("-" if r[k] is None else str(r[k]) for k in DECISION_COLUMNS))
-    shown = [c for c in cols if c.key not in ("scene_key", "method_key", *DECISION_COLUMNS)] + [decisions]
-    return Table("collisions", "What the deployment collisions were", cols, rows, display=Table("", "", shown, rows),
-                 notes=["Every deployment collision of the ego, read from the state the colliding step left "
-                        "(experiments/collisions.py; docs/paper-notes.md, 'Collision census'). Jobs and levels "
-                        "without a collision, and evaluations written before the census, are not listed.",
-                        "Through which decision (the decision trace, docs/paper-notes.md): in the last 8 "
-                        "decisions, an action the method's safe mask forbade; else a lane change allowed and "
-                        "executed while R*1 = 0 (the printed mappings hold the speed through it); else Faster "
-                        "or Idle allowed at a bumper gap under 0.5 m (creep); else other. '-': an evaluation "
-                        "written before the trace."])
-
-
-COLLISION_KINDS = ("front", "rear", "side", "road")
-DECISION_COLUMNS = {"decision_forbidden": FORBIDDEN, "decision_lane_change_r1": LANE_CHANGE_CYCLE,
-                    "decision_creep": CREEP, "decision_other": OTHER}
-
-
-REPORT_TABLES = ("table5", "table6", "group1_deployment", "group2", "multilane", "group3", "collisions")
+REPORT_TABLES = ("table5", "table6", "group1_deployment", "group2", "multilane", "group3", "collisions",
+                 "collision_verdicts")
 
 
 def all_tables(results: Results) -> dict[str, Table]:
     """The reproduction's tables, then each other profile's as NAME_PROFILE, titled "Beyond the paper"."""
     out = {t.name: t for t in (group1_deployment(results), group2(results), multilane(results), group3(results),
-                               table5(results), table6(results), collisions(results))}
+                               table5(results), table6(results), collisions(results),
+                               collision_verdicts(results))}
     for other in results.beyond():
         for t in (group1_deployment(other), group2(other), multilane(other), group3(other), table5(other),
-                  table6(other), training(other), collisions(other)):
+                  table6(other), training(other), collisions(other), collision_verdicts(other)):
             t.name = f"{t.name}_{other.profile}"
             t.title = f"Beyond the paper ({other.profile} profile): {t.title}"
             out[t.name] = t

@@ -43,11 +43,13 @@ def group_alive(pgid: int) -> bool:
     return True
 
 
-def stopped(argv, ready, sig=signal.SIGINT, whole_group=True, timeout=240) -> tuple[int, str]:
-    """Start the CLI with argv, wait until ready() holds, send sig (to its group, like Ctrl-C, or to the
-    command alone, like `kill PID`); its exit status and stderr once every process of its group is gone."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
-    proc = subprocess.Popen([sys.executable, "-m", "highway_srl.cli", *map(str, argv)], env=env,
+def stopped(argv, ready, sig=signal.SIGINT, whole_group=True, timeout=240, entry=("-m", "highway_srl.cli"),
+            path=()) -> tuple[int, str]:
+    """Start the CLI with argv (through entry, with the folders path first on PYTHONPATH), wait until ready()
+    holds, send sig (to its group, like Ctrl-C, or to the command alone, like `kill PID`); its exit status and
+    stderr once every process of its group is gone."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([*map(str, path), str(ROOT)]), "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen([sys.executable, *map(str, entry), *map(str, argv)], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
         deadline = time.monotonic() + timeout
@@ -106,9 +108,71 @@ def test_ctrl_c_while_the_study_workers_start_is_one_line(tmp_path):
     one_line(err, "highway-srl: interrupted")
 
 
+# a sitecustomize that stalls each of a study's spawned workers as it starts, its signals held (as while
+# it imports torch); it says so in a file
+STALLED_WORKER = """import os, sys, time
+if any("spawn_main" in arg for arg in sys.orig_argv):
+    open(os.path.join(os.environ["HIGHWAY_SRL_TEST_STALLED"], str(os.getpid())), "w").close()
+    time.sleep(600)
+"""
+
+
+def test_ctrl_c_ends_a_study_whose_workers_are_still_starting(tmp_path, monkeypatch):
+    # the workers never finish starting: a study that waited for them would outlast the timeout
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text(STALLED_WORKER)
+    marks = tmp_path / "stalled"
+    marks.mkdir()
+    monkeypatch.setenv("HIGHWAY_SRL_TEST_STALLED", str(marks))
+    out = tmp_path / "study"
+    code, err = stopped([*STUDY, "--out", out], lambda pid: any(marks.iterdir()), path=[site])
+    assert code == 130
+    one_line(err, "highway-srl: interrupted")
+
+
 def test_kill_of_a_study_ends_its_running_jobs_with_one_line(tmp_path):
     out = tmp_path / "study"
     code, err = stopped([*STUDY, "--out", out], lambda pid: any((out / "runs").glob("*/*/.lock")),
                         sig=signal.SIGTERM, whole_group=False)
     assert code == 143
     one_line(err, "highway-srl: terminated")
+
+
+# a gymnasium whose import stops midway (it says so in a file): the signal comes while highway_srl imports,
+# before the command's main runs
+STALLED_IMPORT = """import os, time
+open(os.environ["HIGHWAY_SRL_TEST_IMPORTING"], "w").close()
+time.sleep(600)
+"""
+# what pip writes as the console script `highway-srl`
+CONSOLE_SCRIPT = """import sys
+from highway_srl.cli import main
+sys.exit(main())
+"""
+
+
+@pytest.mark.parametrize("entry,sig,status,word", [
+    ("module", signal.SIGINT, 130, "interrupted"), ("script", signal.SIGINT, 130, "interrupted"),
+    ("module", signal.SIGTERM, 143, "terminated")])
+def test_a_signal_while_python_imports_is_one_line(tmp_path, monkeypatch, entry, sig, status, word):
+    stalled = tmp_path / "stalled" / "gymnasium"
+    stalled.mkdir(parents=True)
+    (stalled / "__init__.py").write_text(STALLED_IMPORT)
+    mark = tmp_path / "importing"
+    monkeypatch.setenv("HIGHWAY_SRL_TEST_IMPORTING", str(mark))
+    script = tmp_path / "bin" / "highway-srl"
+    script.parent.mkdir()
+    script.write_text(CONSOLE_SCRIPT)
+    code, err = stopped(["--version"], lambda pid: mark.exists(), sig=sig, whole_group=sig == signal.SIGINT,
+                        entry=("-m", "highway_srl.cli") if entry == "module" else (script,), path=[stalled.parent])
+    assert code == status
+    one_line(err, f"highway-srl: {word}")
+
+
+def test_importing_the_library_leaves_the_signals_to_the_program():
+    code = ("import signal, highway_srl; print(signal.getsignal(signal.SIGINT) is signal.default_int_handler, "
+            "signal.getsignal(signal.SIGTERM) is signal.SIG_DFL)")
+    done = subprocess.run([sys.executable, "-c", code], env={**os.environ, "PYTHONPATH": str(ROOT)},
+                          capture_output=True, text=True, timeout=240)
+    assert done.stdout.split() == ["True", "True"], done.stderr

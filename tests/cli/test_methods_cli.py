@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from highway_srl.cli import main
+from highway_srl.constants import DEFAULT_ADVERSARY, DEFAULT_PROFILE
 
 
 # tiny networks: one thread for every test here (tests/conftest.py)
@@ -99,6 +100,7 @@ def test_play_drives_headless_with_scripted_keys_and_logs_like_every_method(tmp_
     assert report["method"] == "manual" and report["levels"]["A"]["episodes"] == 2
     config = json.loads((tmp_path / "human" / "config.json").read_text())["config"]
     assert config["method"] == "manual" and config["scenario"] == "two-lane"
+    assert (config["profile"], config["adversary"]) == (DEFAULT_PROFILE, DEFAULT_ADVERSARY)  # one default, recorded
 
 
 @pytest.mark.parametrize("driver", ["dummy", "offscreen"])

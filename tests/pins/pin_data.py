@@ -51,8 +51,9 @@ def trajectory_hash(scenario: str, adversarial: bool, steps: int = PIN_STEPS, en
     from highway_srl.rules import SafetyLayer
     from highway_srl.sim import World
 
-    world = World(scenario, "C", adversarial, envs, "cpu", seed=7)
-    layer = SafetyLayer(world.road)
+    # the settings the trajectories were recorded with, named (not the library's defaults, which may change)
+    world = World(scenario, "C", adversarial, envs, "cpu", seed=7, adversary="mild")
+    layer = SafetyLayer(world.road, profile="safe")
     h = hashlib.sha256()
     env = torch.arange(envs)
     for t in range(steps):

@@ -8,6 +8,7 @@ and a golden test of Eqs. 31-35 under `paper`.
 import pytest
 import torch
 
+from highway_srl.constants import DEFAULT_PROFILE
 from highway_srl.rules import PROFILES, RM_STATES, SafetyLayer, control_profile
 from highway_srl.rules.mappings import stopping_speed
 from highway_srl.rules.raw import RawSafetyLayer
@@ -21,9 +22,11 @@ def layers(road, **kwargs):
     return {name: SafetyLayer(road, profile=name, **kwargs) for name in ("paper", "safe")}
 
 
-def test_safe_is_the_default_profile_and_equals_the_previous_defaults():
-    layer = SafetyLayer(make_road("two-lane"))
-    assert layer.profile == "safe"
+def test_the_default_profile_is_every_entry_points_and_each_profile_sets_its_additions():
+    # one default in one place: the layer's is the CLI's, the envs' and the study's (constants.DEFAULT_PROFILE)
+    assert SafetyLayer(make_road("two-lane")).profile == DEFAULT_PROFILE
+    assert RawSafetyLayer(make_road("two-lane")).mapped.profile == DEFAULT_PROFILE
+    layer = SafetyLayer(make_road("two-lane"), profile="safe")
     assert (layer.abort_unsafe_change, layer.brake_while_changing, layer.finish_in_window, layer.straddle_grouping,
             layer.standstill_gap_m, layer.turning_in_is_near, layer.last_resort_stops) == (True, True, True, True, 1.0,
                                                                                            True, True)
@@ -49,7 +52,7 @@ def test_unknown_profile_is_a_value_error_naming_the_choices():
 
 def test_raw_layer_takes_the_profiles_standstill_margin():
     road = make_road("two-lane")
-    assert RawSafetyLayer(road).standstill_gap_m == 1.0
+    assert RawSafetyLayer(road, profile="safe").standstill_gap_m == 1.0
     assert RawSafetyLayer(road, profile="paper").standstill_gap_m == 0.0
     assert RawSafetyLayer(road, profile="paper").mapped.profile == "paper"
 

@@ -34,7 +34,7 @@ def test_close_slow_leader_allows_only_slower_and_lane_change_table1_row9(hand_w
 
 def test_lane_change_sets_target_and_rm_enters_lane_change_mode(hand_world):
     world = hand_world(make_road("two-lane"), [{"ego": (0.0, 0.0, 10.0, 0.0), "svs": [(8.0, 0.0, 5.0, 0.0)]}])
-    layer = SafetyLayer(world.road, hold_lane_change=False)
+    layer = SafetyLayer(world.road, profile="safe", hold_lane_change=False)  # safe: brake_while_changing
     layer.observe(world)
     lane, speed = layer.act(torch.tensor([LANE_CHANGE]))
     # R*_SV1 = 0: the ego changes lanes braking as Slower would (brake_while_changing, docs/paper-notes.md)
@@ -161,7 +161,7 @@ def test_a_lane_change_is_started_only_if_it_ends_before_the_window_closes(hand_
               {"ego": (x2 - 15.0, W, 8.0, 0.0), "svs": []},  # 15 m left: no
               {"ego": (x2 - 15.0, W, 2.0, 0.0), "svs": []}]  # slowly: 6 m needed, yes
     world = hand_world(road, scenes)
-    layer = SafetyLayer(road)
+    layer = SafetyLayer(road, profile="safe")  # the safe profile's finish_in_window
     layer.observe(world)
     lane, _ = layer.act(torch.tensor([LANE_CHANGE] * 3))
     assert lane.tolist() == [2, 1, 2]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from highway_srl.constants import VEHICLE_LENGTH_M
+from highway_srl.constants import DEFAULT_ADVERSARY, VEHICLE_LENGTH_M
 from highway_srl.sim import World
 from highway_srl.sim.adversary import ADVERSARIES, cut_ins_ahead_with_room, cut_ins_whatever_the_gaps
 from sim_helpers import drive
@@ -51,12 +51,12 @@ def _check_cut_ins(world: World, steps: int) -> int:
 
 def test_adversarial_svs_cut_into_the_ego_lane_with_the_styles_probabilities():
     # (about 1.2 triggers per episode at level C, each firing with the SV's ABP of 1/9 or 1/27)
-    world = World("two-lane", "C", adversarial=True, num_envs=96, seed=9)
+    world = World("two-lane", "C", adversarial=True, num_envs=96, seed=9, adversary="mild")  # ahead, with room
     assert _check_cut_ins(world, 320) >= 1
 
 
 def test_every_triggered_sv_cuts_in_at_most_once_per_episode_when_abp_is_one():
-    world = World("multi-lane", "C", adversarial=True, num_envs=32, seed=4)
+    world = World("multi-lane", "C", adversarial=True, num_envs=32, seed=4, adversary="mild")
     s = world.state
     s.adversarial_prob[:, 1:] = 1.0  # every style attacks, every trigger fires (this episode)
     total = _check_cut_ins(world, 300)
@@ -86,3 +86,5 @@ def test_the_adversaries_are_chosen_by_their_user_facing_names():
     assert ADVERSARIES == {"mild": cut_ins_ahead_with_room, "paper": cut_ins_whatever_the_gaps}
     with pytest.raises(ValueError, match="unknown adversary 'evil'; choose one of mild, paper"):
         World(adversary="evil")
+    # one default in one place: a World made without one runs every entry point's (constants.DEFAULT_ADVERSARY)
+    assert World("two-lane", adversarial=True).adversary == DEFAULT_ADVERSARY

@@ -49,6 +49,12 @@ DAMAGE = {  # name: (file under the job folder or the study, how it is damaged, 
                            "episodes.jsonl line 1 is damaged: seed 7 is not one of the run's seeds"),
     "episode-text-return": ("episodes.jsonl", lambda p: _edit_first_line(p, lambda r: r.update({"return": "x"})),
                             "episodes.jsonl line 1 is damaged: the row: return must be a finite number"),
+    "metrics-verdict-text": ("metrics.json", lambda p: _edit_json(p, lambda d: d.update(collision_verdicts={
+        "all": {"collisions": 1, "ego_avoidable": "one", "unavoidable": 0, "not_judged": 0}})),
+        "metrics.json: collision_verdicts.all: ego_avoidable must be a non-negative integer"),
+    "eval-verdict-negative": ("eval.json", lambda p: _edit_json(
+        p, lambda d: d["levels"]["C"]["collisions"].update(ego_avoidable=0, unavoidable=-1)),
+        "eval.json: levels.C.collisions: unavoidable must be a non-negative integer"),
     "study-empty": ("../study.json", lambda p: p.write_text("{}"), "study.json: budget is missing"),
     "study-jobs-list": ("../study.json", lambda p: _edit_json(p, lambda d: d.update(jobs=[])),
                         "study.json: jobs must be a JSON object, got []"),

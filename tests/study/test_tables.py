@@ -28,7 +28,8 @@ def study(tmp_path_factory):
 
 
 def test_every_artefact_is_written_as_csv_and_markdown_and_figures_as_png_and_svg(study):
-    for name in ("group1_deployment", "group2", "multilane", "group3", "table5", "table6", "collisions"):
+    for name in ("group1_deployment", "group2", "multilane", "group3", "table5", "table6", "collisions",
+                 "collision_verdicts"):
         assert (study / "tables" / f"{name}.csv").stat().st_size > 0
         assert (study / "tables" / f"{name}.md").read_text().startswith("## ")
     figures = ["deployment_pareto", "training_pareto"] + [f"training_curves_{s}" for s in SCENES]
@@ -98,6 +99,19 @@ def test_collisions_table_lists_each_job_and_level_that_had_any_by_kind(study):
     md = (study / "tables" / "collisions.md").read_text()
     n = rows[0]["collisions"]
     assert "forbidden / lane change at R*1 = 0 / creep / other" in md and f"| 0 / 0 / {n} / 0 |" in md
+
+
+def test_collision_verdicts_table_has_every_finished_job_in_training_and_at_each_level(study):
+    rows = _rows(study / "tables" / "collision_verdicts.csv")
+    # the fakes write no verdicts (as runs before them): counts without a split, never a 0 in its place
+    rl = [(r["phase"], r["level"]) for r in rows if r["scene_key"] == "two-lane" and r["method_key"] == "rl"]
+    assert rl[0] == ("training", "C") and sorted(rl[1:]) == [("deployment", lv) for lv in ("A", "C", "F")]
+    assert all(r["ego_avoidable"] == r["unavoidable"] == r["not_judged"] == "" for r in rows)
+    assert all(int(r["collisions"]) == round(0.3 * int(r["episodes"])) for r in rows
+               if r["method_key"] == "rl" and r["phase"] == "deployment")
+    report = (study / "report.md").read_text()
+    assert "## Collisions the ego could have avoided, in training and deployment" in report
+    assert "| Two-lane | RL | 10: – / – / – |" in report  # POOR: half of 20 training episodes
 
 
 def test_training_figure_data_has_every_non_ablation_run_and_curves_have_bins(study):
