@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from highway_srl.commands.arguments import adversary_name, levels, non_negative, positive, profile_name
+from highway_srl.commands.arguments import adversary_name, levels, non_negative, positive, profile_name, unit_fraction
 from highway_srl.constants import TRAFFIC_LEVELS
 
 
@@ -31,19 +31,63 @@ def _cmd_falsify(args) -> int:
     settings = fz.FalsifySettings(
         scenes=tuple(x.strip() for x in args.scenes.split(",") if x.strip()), levels=tuple(args.levels),
         modes=tuple(modes[m] for m in names), profile=args.profile or "safe", policy=args.policy,
-        episodes=args.episodes, envs=args.envs, seed=args.seed, steps=args.steps, adversary=args.adversary)
-    report = fz.falsify(settings, args.out, processes=args.processes)
+        episodes=args.episodes or 256, envs=args.envs or 256, seed=args.seed, steps=args.steps, adversary=args.adversary)
+    if args.search == "ce":
+        report = _ce_report(args, settings)
+    else:
+        check_breadth_arguments(args)
+        report = fz.falsify(settings, args.out, processes=args.processes)
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
-    print(f"{report['episodes']:,} episodes ({settings.profile} profile, {settings.policy} ego): "
-          f"{report['collisions']:,} collisions, {report['ego_avoidable']:,} ego-avoidable; 95 % upper bound on the "
-          f"per-episode rate of ego-avoidable collisions {report['ego_avoidable_rate_upper_95']:.3g}")
+    if args.search == "ce":
+        print(f"{report['episodes']:,} episodes in {len(report['iterations'])} iterations ({settings.profile} profile, "
+              f"{settings.policy} ego, cross-entropy search): {report['collisions']:,} collisions, "
+              f"{report['ego_avoidable']:,} ego-avoidable of {report['ego_avoidable_causes']} causes")
+        for row in report["iterations"]:
+            print(f"  iteration {row['iteration']}: {row['ego_avoidable']:5,d} ego-avoidable of {row['episodes']:,} "
+                  f"episodes, mean score {row['mean_score']:.3f}")
+    else:
+        print(f"{report['episodes']:,} episodes ({settings.profile} profile, {settings.policy} ego): "
+              f"{report['collisions']:,} collisions, {report['ego_avoidable']:,} ego-avoidable; 95 % upper bound on "
+              f"the per-episode rate of ego-avoidable collisions {report['ego_avoidable_rate_upper_95']:.3g}")
     for reason, n in report["by_reason"].items():
         print(f"  {n:6,d}  {reason}")
+    if args.search == "ce":  # every ego-avoidable collision is a case: their count, not a list
+        print(f"  {len(report['cases'])} cases" + (f" in {args.out}" if args.out else " (not written: no --out)"))
+        return 0
     for case in report["cases"]:
         print(f"  case {case.get('path', '(not written: no --out)')}: {case['cause']}")
     return 0
+
+
+def check_breadth_arguments(args) -> None:
+    given = [f"--{name}" for name in ("iterations", "samples", "elite") if getattr(args, name) is not None]
+    if given:
+        raise ValueError(f"{', '.join(given)}: only with --search ce")
+
+
+def _ce_report(args, settings) -> dict:
+    """The cross-entropy search's report (experiments/scenario_search.py) for the parsed arguments."""
+    from highway_srl.experiments import scenario_search as ss
+
+    if args.episodes is not None or args.envs is not None:
+        raise ValueError("--episodes and --envs go with --search breadth; --search ce takes --iterations and --samples")
+    given = {name: getattr(args, name) for name in ("iterations", "samples", "elite") if getattr(args, name) is not None}
+    return ss.ce_search(settings, ss.SearchSettings(**given), args.out, processes=args.processes)
+
+
+def _add_search_arguments(p) -> None:
+    """--search and the cross-entropy search's own arguments (experiments/scenario_search.py)."""
+    p.add_argument("--search", choices=("breadth", "ce"), default="breadth", help="breadth: --episodes in every "
+                   "scene, level and mode, drawn from the simulator's full ranges; ce: a cross-entropy search over "
+                   "scene, level, mode and the initial scene's gaps, speeds, driver styles and cut-in parameters, "
+                   "keeping every ego-avoidable collision as a case")
+    p.add_argument("--iterations", type=positive, default=None, help="with --search ce: iterations (default 8)")
+    p.add_argument("--samples", type=positive, default=None, help="with --search ce: scenarios an iteration "
+                   "(default 256)")
+    p.add_argument("--elite", type=unit_fraction, default=None, help="with --search ce: the fraction of the "
+                   "samples the distribution is refitted to (default 0.2)")
 
 
 def _add_falsify(sub) -> None:
@@ -61,13 +105,14 @@ def _add_falsify(sub) -> None:
     p.add_argument("--policy", choices=POLICIES, default="uniform", help="the ego: uniform among the allowed "
                    "actions, greedy-ttc (the allowed action with the soonest predicted contact) or exg (ExG's gate)")
     p.add_argument("--adversary", type=adversary_name, default="paper", help="group-3 cut-ins of adversarial mode")
-    p.add_argument("--episodes", type=positive, default=256, help="episodes per scene, level and mode")
-    p.add_argument("--envs", type=positive, default=256, help="episodes stepped together")
+    p.add_argument("--episodes", type=positive, default=None, help="episodes per scene, level and mode (default 256)")
+    p.add_argument("--envs", type=positive, default=None, help="episodes stepped together (default 256)")
     p.add_argument("--steps", type=positive, default=320, help="episode length in steps")
     p.add_argument("--seed", type=non_negative, default=0)
     p.add_argument("--out", default=None, help="folder for report.json and the cases (one per cause)")
     p.add_argument("--processes", type=positive, default=1, help="worker processes of one thread each, sharing "
                    "the batches (the report is the same for any count)")
+    _add_search_arguments(p)
     p.add_argument("--replay", default=None, metavar="CASE.json", help="replay a case and confirm its collision "
                    "(exit status 1 if it does not recur)")
     p.add_argument("--substitute", action="store_true", help="with --replay: where the profile forbids a recorded "
