@@ -95,8 +95,9 @@ def _add_falsify(sub) -> None:
 
     p = sub.add_parser("falsify", help="search for ego-avoidable collisions of the rule layer; replay a case",
                        description="Random (or adversarial) allowed actions over scenes x levels x nominal/"
-                       "adversarial; counts collisions by cause, ego-avoidable ones, and the 95 %% upper bound on "
-                       "their per-episode rate; one replayable case per cause in --out.")
+                       "adversarial; counts collisions by cause, ego-avoidable ones, and the 95 % upper bound on "
+                       "their per-episode rate; one replayable case per cause in --out. --search ce: a cross-entropy "
+                       "search over scenario parameters instead, every ego-avoidable collision a case.")
     p.add_argument("--scenes", default="two-lane", help="comma-separated: two-lane, multi-lane, merge, exit")
     p.add_argument("--levels", type=levels, default=list(TRAFFIC_LEVELS), help="e.g. F, A,C,F or A..F (default A..F)")
     p.add_argument("--modes", default="nominal,adversarial", help="nominal, adversarial or both (default both)")

@@ -2,9 +2,9 @@
 chooses (experiments/scenario_search.py), set on the state a World has just spawned.
 
 The simulator is not changed: a World takes its state edited between steps, and these edits only choose
-among initial scenes it could spawn or be given (other gaps, speeds, driver styles, cut-in
-probabilities and trigger offsets of the vehicles placed at the start; vehicles recycled later are drawn
-as always). An env with no parameters is the World's own spawn, bit for bit, so a case without them
+among initial scenes it could spawn or be given (wider gaps, other speeds in the spawn's range, other
+driver styles, cut-in probabilities and trigger offsets of the vehicles placed at the start; vehicles
+recycled later are drawn as always). An env with no parameters is the World's own spawn, bit for bit, so a case without them
 replays as before. Every edit is a function of the env's own seed and parameters, so env b edited in a
 batch and alone in a world of one env start the same.
 """
@@ -15,15 +15,18 @@ import math
 
 import torch
 
-from highway_srl.constants import STYLE_NAMES, STYLES, V_MAX_MPS
+from highway_srl.constants import STYLE_NAMES, STYLES, SV_INIT_SPEED_MPS, V_MAX_MPS
 from highway_srl.sim import World, rng
 from highway_srl.sim.idm_mobil import sorted_order
 
 # name: (low, high). The style weights are relative (normalised over the three, at least one above 0).
+# Gaps and speeds stay where the spawn puts them or move into benign room: a scene the spawn could not
+# start (a leader closer or slower than its draws allow) can be past saving at step 0, which the
+# ego-avoidable verdict, judging a few decisions before the contact, may still call avoidable.
 KNOBS: dict[str, tuple[float, float]] = {
-    "gap_scale": (0.6, 1.5),  # the SVs' drawn distances to the ego, scaled (at 0.6 level F's queues still clear L)
-    "sv_speed_mps": (-3.0, 3.0),  # added to every SV's drawn initial speed (clamped at 0)
-    "ego_speed_mps": (0.0, V_MAX_MPS),  # the ego's initial speed instead of its draw from U[5, 6]
+    "gap_scale": (1.0, 1.5),  # the SVs' drawn distances to the ego, scaled (1: as drawn; only wider)
+    "sv_speed_mps": (-1.0, 1.0),  # added to every SV's drawn initial speed, kept in SV_INIT_SPEED_MPS
+    "ego_speed_mps": SV_INIT_SPEED_MPS,  # the ego's initial speed instead of its draw from the same range
     "aggressive": (0.0, 1.0),  # weights of the SVs' styles, instead of a uniform draw
     "normal": (0.0, 1.0),
     "cautious": (0.0, 1.0),
@@ -83,7 +86,7 @@ def set_parameters(world: World, parameters: list[dict]) -> None:
                                         s.adversarial_prob[:, 1:]))
     put(s.trigger_offset, _column(parameters, "trigger_offset_m"))
     put(s.x, s.x[:, :1] + (s.x[:, 1:] - s.x[:, :1]) * _column(parameters, "gap_scale"))
-    put(s.v, (s.v[:, 1:] + _column(parameters, "sv_speed_mps")).clamp(min=0.0))
+    put(s.v, (s.v[:, 1:] + _column(parameters, "sv_speed_mps")).clamp(*SV_INIT_SPEED_MPS))
     ego = _column(parameters, "ego_speed_mps")[:, 0]
     s.v[:, 0] = torch.where(ego.isnan(), s.v[:, 0], ego)
     s.order = sorted_order(s.x)  # scaling about the ego keeps the order; recomputed, not assumed
