@@ -10,7 +10,8 @@ rules.avoidable). The report gives the episodes, the collisions by cause, the eg
 95 % upper bound on the per-episode rate of ego-avoidable collisions (3/N with none, else the exact
 one-sided Clopper-Pearson bound). Each cause's first counterexample is kept as a replayable case: the
 world's seed and env, the settings, and the ego's actions, which replay_case drives again in a world of one
-env (env b of a batch depends only on its own seed, sim.World).
+env (env b of a batch depends only on its own seed, sim.World). The cross-entropy search over scenario
+parameters (`--search ce`) is experiments/scenario_search.py; its cases also record the parameters.
 """
 
 from __future__ import annotations
