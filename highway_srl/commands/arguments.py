@@ -105,6 +105,10 @@ def non_negative_float(text: str) -> float:
     return _number(text, "a non-negative number", lambda v: v >= 0)
 
 
+def unit_fraction(text: str) -> float:
+    return _number(text, "a number in (0, 1]", lambda v: 0 < v <= 1)
+
+
 def profile_name(text: str) -> str:
     from highway_srl.rules import PROFILES
 

@@ -11,7 +11,8 @@ class, ego-avoidable verdict of rules.avoidable). The report gives the episodes,
 ego-avoidable count and the 95 % upper bound on the per-episode rate of ego-avoidable collisions (3/N with
 none, else the exact one-sided Clopper-Pearson bound). Each cause's first counterexample is kept as a
 replayable case: the world's seed and env, the settings, and the ego's actions, which replay_case drives
-again in a world of one env (env b of a batch depends only on its own seed, sim.World).
+again in a world of one env (env b of a batch depends only on its own seed, sim.World). The cross-entropy search over scenario
+parameters (`--search ce`) is experiments/scenario_search.py; its cases also record the parameters.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from highway_srl.agents.gating import explore_gate
 from highway_srl.constants import DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, TRAFFIC_LEVELS, V_MAX_MPS
 from highway_srl.experiments.collisions import DecisionTrace
 from highway_srl.experiments.runs import check_output_folder, read_json, write_json
+from highway_srl.experiments.scenario_params import check_parameters, scenario_world
 from highway_srl.rules import ACTIONS, FASTER, IDLE, LANE_CHANGE, SLOWER, SafetyLayer, control_profile
 from highway_srl.scenarios import check_scenario
 from highway_srl.sim import World
@@ -83,9 +85,11 @@ class Case:
     cause: str
     ego_avoidable: bool
     record: dict = field(default_factory=dict)  # the decision trace's record of the collision
+    # scenario parameters set on the spawned world (experiments/scenario_params.py); {}: the spawn as drawn
+    parameters: dict = field(default_factory=dict)
 
 
-class _AllowedActions:
+class AllowedActions:
     """What DecisionTrace reads of a method: the action names and the safe mask (the rule layer's own)."""
 
     action_names = ACTIONS
@@ -171,16 +175,25 @@ def sweep_batch(scene: str, level: str, adversarial: bool, settings: FalsifySett
                   adversary=settings.adversary)
     layer = SafetyLayer(world.road, profile=settings.profile, **layer_options)
     gen = torch.Generator().manual_seed(seed)
-    trace = DecisionTrace(_AllowedActions())
+    trace = DecisionTrace(AllowedActions())
     pick = pick or (lambda view, g: choose(settings.policy, view, g))
     actions, collided, changed = drive(world, layer, lambda step, view: pick(view, gen), trace)
-    cases = [Case(scene, level, adversarial, settings.adversary, settings.profile, seed, rec["env"], settings.steps,
-                  actions[rec["env"], :rec["step"] + 1].tolist(), cause_of(rec), rec["ego_avoidable"], rec)
-             for rec in trace.records]
-    counts = {"episodes": envs, "collisions": int(collided.sum()), "changed_lane": int(changed.sum()),
-              "by_kind": dict(collections.Counter(rec["kind"] for rec in trace.records)),
-              "by_decision": trace.counts(), **trace.verdicts()}
-    return counts, cases
+    return batch_counts(trace, collided, changed), batch_cases(world, settings, seed, actions, trace)
+
+
+def batch_counts(trace: DecisionTrace, collided: torch.Tensor, changed: torch.Tensor) -> dict:
+    """A driven batch's counts: episodes, collisions, lane changes, by kind, by decision class, verdicts."""
+    return {"episodes": collided.shape[0], "collisions": int(collided.sum()), "changed_lane": int(changed.sum()),
+            "by_kind": dict(collections.Counter(rec["kind"] for rec in trace.records)),
+            "by_decision": trace.counts(), **trace.verdicts()}
+
+
+def batch_cases(world, settings: FalsifySettings, seed: int, actions: torch.Tensor, trace: DecisionTrace) -> list[Case]:
+    """One Case per collision the trace recorded in a driven batch of world (world seed `seed`)."""
+    return [Case(world.scenario, world.traffic, world.adversarial, settings.adversary, settings.profile, seed,
+                 rec["env"], settings.steps, actions[rec["env"], :rec["step"] + 1].tolist(), cause_of(rec),
+                 rec["ego_avoidable"], rec)
+            for rec in trace.records]
 
 
 def cause_of(record: dict) -> str:
@@ -242,8 +255,7 @@ def falsify(settings: FalsifySettings, out: str | Path | None = None, progress=N
     trained = set(policies or {})
     if (settings.policy == LEARNED and not trained >= set(settings.scenes)) or (settings.policy != LEARNED and trained):
         raise ValueError(f"policy {LEARNED!r} and a trained ego for every scene go together (experiments.adversary)")
-    if not isinstance(processes, int) or processes < 1:
-        raise ValueError(f"processes must be a positive integer, got {processes!r}")
+    check_processes(processes)
     if out is not None:
         check_report_folder(Path(out))
     plan = [(scene, adv, level) for scene in settings.scenes for adv in settings.modes for level in settings.levels]
@@ -275,8 +287,13 @@ def falsify(settings: FalsifySettings, out: str | Path | None = None, progress=N
     return report
 
 
+def check_processes(processes) -> None:
+    if not isinstance(processes, int) or processes < 1:
+        raise ValueError(f"processes must be a positive integer, got {processes!r}")
+
+
 def check_report_folder(out: Path) -> None:
-    """Refuse, before any work, an --out that is a file or already holds a falsify report."""
+    """A folder falsify may write its report and cases to: writable, and without a report already."""
     check_output_folder(out)
     if (out / "report.json").exists():
         raise ValueError(f"--out {str(out)!r} already holds a falsify report; choose another folder")
@@ -320,6 +337,10 @@ def load_case(path: str | Path) -> Case:
         case = Case(**data)
     except TypeError as err:
         raise ValueError(f"{path} is not a falsify case ({err})") from None
+    try:
+        check_parameters(case.parameters)
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from None
     if not case.actions or any(not 0 <= a < len(ACTIONS) for a in case.actions):
         raise ValueError(f"{path}: actions must be a non-empty list of indices into {', '.join(ACTIONS)}")
     return case
@@ -336,8 +357,7 @@ def replay_case(case: Case, profile: str | None = None, substitute: bool = False
     allowed of CAUTIOUS_ORDER instead (how a counterexample found under one profile is put to another:
     the ego follows the recorded plan as far as the rule layer lets it); `substituted` counts them."""
     profile = profile or case.profile
-    world = World(case.scene, case.level, case.adversarial, 1, "cpu", case.seed + case.env, max_steps=case.steps,
-                  adversary=case.adversary)
+    world = case_world(case)
     layer = SafetyLayer(world.road, profile=profile, **layer_options)
     recorded = torch.tensor(case.actions)
     order = torch.tensor(CAUTIOUS_ORDER)
@@ -350,7 +370,7 @@ def replay_case(case: Case, profile: str | None = None, substitute: bool = False
             return order[mask[0, order].nonzero()[0]]
         return action
 
-    trace = DecisionTrace(_AllowedActions())
+    trace = DecisionTrace(AllowedActions())
     drive(world, layer, pick, trace, limit=len(case.actions))
     rec = trace.records[0] if trace.records else None
     result = {"profile": profile, "collided": rec is not None, "step": None if rec is None else rec["step"],
@@ -362,6 +382,13 @@ def replay_case(case: Case, profile: str | None = None, substitute: bool = False
     return result
 
 
+def case_world(case: Case) -> World:
+    """The case's episode in a world of one env: env b of a batch depends only on its own seed (and its
+    scenario parameters)."""
+    return scenario_world(case.scene, case.level, case.adversarial, [case.seed + case.env], case.steps,
+                          case.adversary, [case.parameters])
+
+
 def render_case(case: Case, out: str | Path, profile: str | None = None, overwrite: bool = False) -> list[Path]:
     """The case's episode as a GIF (and a PNG of its middle frame beside it), each frame titled with the
     action taken and the actions the rule layer allowed; an existing GIF or PNG only with overwrite."""
@@ -371,8 +398,7 @@ def render_case(case: Case, out: str | Path, profile: str | None = None, overwri
     if out.suffix.lower() != ".gif":
         raise ValueError(f"--gif must end in .gif, got {str(out)!r}")
     check_output_folder(out.parent, "--gif")
-    world = World(case.scene, case.level, case.adversarial, 1, "cpu", case.seed + case.env, max_steps=case.steps,
-                  adversary=case.adversary)
+    world = case_world(case)
     layer = SafetyLayer(world.road, profile=profile or case.profile)
     step = iter(case.actions)
 
