@@ -3,8 +3,9 @@ falsifier's own case format). Each replays without an ego-avoidable collision un
 ego follows the recorded actions as far as the rule layer allows them, the most cautious allowed action
 where it does not: falsify.replay_case(substitute=True)). A case found under the paper profile is a hole
 of the printed equations: replayed under paper, its actions are all allowed and end in the same
-ego-avoidable collision. A case found under the safe profile is a hole the safe profile had: its collision
-comes back with the addition that closed it switched off."""
+ego-avoidable collision. A case found under the safe profile is either a hole the safe profile had (its
+collision comes back with the addition that closed it switched off) or a collision the verdict judges
+unavoidable (a standing ego hit from the side)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from highway_srl.experiments import falsify as fz
+from highway_srl.rules.avoidable import SIDE_SWIPE, STOOD
 
 CASES = sorted((Path(__file__).parent / "cases").glob("*.json"))
 # counterexamples the safe profile does not close yet, with what is missing
@@ -28,13 +30,13 @@ OPEN = {
     "safe-greedy-tail-over-the-line-merge-F.json": TAIL,
     "safe-cut-in-from-the-unseen-lane-multi-lane-C-adversarial.json": UNSEEN,
     "safe-greedy-unseen-lane-tail-over-the-line-multi-lane-F.json": UNSEEN,
-    "safe-standing-ego-side-cut-in-multi-lane-F-adversarial.json":
-        "the ego stands (only Slower allowed) while a car alongside cuts in and meets its side; the verdict "
-        "calls it ego-avoidable because that car stayed within the path margin for the whole 8-decision "
-        "trace (doubt falls on the avoidable side), not because the ego had a move",
-    "safe-greedy-standing-change-hit-from-the-side-merge-C-adversarial.json":
-        "the ego stands with a LaneChange target (no lateral move yet) when a car from the far lane behind it "
-        "meets its side; the verdict counts a target lane other than the ego's as changing lanes",
+}
+# safe-profile cases whose collision is not the ego's to avoid (rules.avoidable), with the verdict's reason:
+# the ego stood through the trace with no allowed move; the ego stood centred with a target lane it had not
+# moved toward while a car from the far lane behind it turned in (RSS: a car at standstill is not responsible)
+UNAVOIDABLE = {
+    "safe-standing-ego-side-cut-in-multi-lane-F-adversarial.json": STOOD,
+    "safe-greedy-standing-change-hit-from-the-side-merge-C-adversarial.json": SIDE_SWIPE,
 }
 # the safe-profile addition whose absence reproduces a case found under the safe profile
 CLOSED_BY = {f"safe-idle-only-into-a-standing-car-{where}.json": {"last_resort_stops": False}
@@ -48,7 +50,7 @@ def _params(paths):
 
 def test_the_suite_holds_every_kind_of_case():
     profiles = {fz.load_case(p).profile for p in CASES}
-    assert profiles == {"paper", "safe"} and set(OPEN) | set(CLOSED_BY) == {
+    assert profiles == {"paper", "safe"} and set(OPEN) | set(CLOSED_BY) | set(UNAVOIDABLE) == {
         p.name for p in CASES if fz.load_case(p).profile == "safe"}
 
 
@@ -72,6 +74,13 @@ def test_a_safe_profile_hole_comes_back_without_its_addition(name):
     result = fz.replay_case(case, "safe", **CLOSED_BY[name])
     assert result["confirmed"] and result["all_allowed"] and result["ego_avoidable"], result
     assert not fz.replay_case(case, "safe")["collided"]
+
+
+@pytest.mark.parametrize("name", sorted(UNAVOIDABLE))
+def test_a_standing_ego_hit_from_the_side_is_judged_unavoidable(name):
+    result = fz.replay_case(fz.load_case(Path(__file__).parent / "cases" / name), "safe", substitute=True)
+    assert result["confirmed"] and not result["ego_avoidable"], result
+    assert result["cause"].endswith(UNAVOIDABLE[name])
 
 
 def test_the_cli_replays_a_paper_case_under_safe_with_substitutes(capsys):
