@@ -18,19 +18,8 @@ from highway_srl.experiments import falsify as fz
 from highway_srl.rules.avoidable import SIDE_SWIPE, STOOD
 
 CASES = sorted((Path(__file__).parent / "cases").glob("*.json"))
-# counterexamples the safe profile does not close yet, with what is missing
-TAIL = ("a car standing mid-change, its tail over the line into the ego's lane: Eq. 31 flags no corner (none "
-        "within ε_p of the line, the centre more than 1.1 m off it) and it heads away from the ego, so neither Eq. 32 "
-        "nor turning_in_is_near groups it with the ego's lane")
-UNSEEN = ("multi-lane: the two-lane model the ego acts on (§3.3) holds two of the three lanes; a car of the third "
-          "lane that reaches into the ego's path is outside its view")
-OPEN = {
-    "safe-tail-over-the-line-two-lane-F-adversarial.json": TAIL,
-    "safe-greedy-tail-over-the-line-multi-lane-F.json": TAIL,
-    "safe-greedy-tail-over-the-line-merge-F.json": TAIL,
-    "safe-cut-in-from-the-unseen-lane-multi-lane-C-adversarial.json": UNSEEN,
-    "safe-greedy-unseen-lane-tail-over-the-line-multi-lane-F.json": UNSEEN,
-}
+# counterexamples the safe profile does not close yet, with what is missing (none at present)
+OPEN: dict[str, str] = {}
 # safe-profile cases whose collision is not the ego's to avoid (rules.avoidable), with the verdict's reason:
 # the ego stood through the trace with no allowed move; the ego stood centred with a target lane it had not
 # moved toward while a car from the far lane behind it turned in (RSS: a car at standstill is not responsible)
@@ -39,8 +28,17 @@ UNAVOIDABLE = {
     "safe-greedy-standing-change-hit-from-the-side-merge-C-adversarial.json": SIDE_SWIPE,
 }
 # the safe-profile addition whose absence reproduces a case found under the safe profile
-CLOSED_BY = {f"safe-idle-only-into-a-standing-car-{where}.json": {"last_resort_stops": False}
-             for where in ("two-lane-F", "two-lane-F-adversarial", "multi-lane-F-adversarial", "exit-F-adversarial")}
+CLOSED_BY = {
+    **{f"safe-idle-only-into-a-standing-car-{where}.json": {"last_resort_stops": False}
+       for where in ("two-lane-F", "two-lane-F-adversarial", "multi-lane-F-adversarial", "exit-F-adversarial")},
+    # a car standing mid-change, its tail over the line into the ego's lane, heading away from it
+    **dict.fromkeys(["safe-tail-over-the-line-two-lane-F-adversarial.json",
+                     "safe-greedy-tail-over-the-line-multi-lane-F.json",
+                     "safe-greedy-tail-over-the-line-merge-F.json"], {"reaching_over_is_near": False}),
+    # multi-lane: a car of the lane the acting two-lane model does not hold, reaching into the ego's path
+    **dict.fromkeys(["safe-cut-in-from-the-unseen-lane-multi-lane-C-adversarial.json",
+                     "safe-greedy-unseen-lane-tail-over-the-line-multi-lane-F.json"], {"watch_third_lane": False}),
+}
 
 
 def _params(paths):
@@ -73,7 +71,8 @@ def test_a_safe_profile_hole_comes_back_without_its_addition(name):
     case = fz.load_case(Path(__file__).parent / "cases" / name)
     result = fz.replay_case(case, "safe", **CLOSED_BY[name])
     assert result["confirmed"] and result["all_allowed"] and result["ego_avoidable"], result
-    assert not fz.replay_case(case, "safe")["collided"]
+    # with it: the recorded plan as far as the layer allows it (a forbidden action executed proves nothing)
+    assert not fz.replay_case(case, "safe", substitute=True)["collided"]
 
 
 @pytest.mark.parametrize("name", sorted(UNAVOIDABLE))
