@@ -35,6 +35,7 @@ from highway_srl.rules.mappings import (
     change_fits_window,
     crossing_allowed,
     crossing_toward,
+    crosses_line,
     fill_defaults,
     front_room,
     id_mapping,
@@ -77,10 +78,10 @@ class ControlProfile:
     side is near it in Eq. 31 (mappings.crossing_toward); last_resort_stops: Idle as Table 1's last resort
     (R*1 = 0, so Idle is the only safe action) brakes just hard enough to stop within the room ahead
     (mappings.stopping_speed) instead of keeping the speed; reaching_over_is_near: an SV whose centre is
-    beyond the lane line while its body reaches over it into the ego's side is near it in Eq. 31, whichever
-    way it heads (mappings.reaching_over); watch_third_lane: on a three-lane road the cars of the lane the
-    two-lane model does not hold that reach into its near lane join that lane's rules (rules.third_lane).
-    docs/paper-notes.md, "Profiles: paper vs safe", gives each with the crash that motivated it.
+    beyond the line while its body crosses it is near it (mappings.reaching_over); watch_third_lane: cars of
+    the lane the model does not hold join the rules of the lane they reach into (rules.third_lane);
+    ego_body_straddles: the straddle grouping also holds while the ego's body crosses the line. docs/
+    paper-notes.md, "Profiles: paper vs safe", gives each with the crash that motivated it.
     """
 
     abort_unsafe_change: bool
@@ -92,13 +93,14 @@ class ControlProfile:
     last_resort_stops: bool
     reaching_over_is_near: bool
     watch_third_lane: bool
+    ego_body_straddles: bool
 
 
 # paper: Eqs. 31-35 as printed plus only the readings they cannot work without (holding a change under way);
 # safe: the project's additions on top, each justified by a measured crash.
 PROFILES: dict[str, ControlProfile] = {
-    "paper": ControlProfile(False, False, False, False, 0.0, False, False, False, False),
-    "safe": ControlProfile(True, True, True, True, STANDSTILL_GAP_M, True, True, True, True),
+    "paper": ControlProfile(False, False, False, False, 0.0, False, False, False, False, False),
+    "safe": ControlProfile(True, True, True, True, STANDSTILL_GAP_M, True, True, True, True, True),
 }
 
 
@@ -216,6 +218,7 @@ class SafetyLayer:
         last_resort_stops: bool | None = None,
         reaching_over_is_near: bool | None = None,
         watch_third_lane: bool | None = None,
+        ego_body_straddles: bool | None = None,
         reaction_s: float = DT_S,
         ego_brake_mps2: float = EGO_BRAKE_MAX_MPS2,
         sv_brake_mps2: float = SV_BRAKE_MAX_MPS2,
@@ -238,6 +241,7 @@ class SafetyLayer:
         self.last_resort_stops = pick(last_resort_stops, prof.last_resort_stops)
         self.reaching_over_is_near = pick(reaching_over_is_near, prof.reaching_over_is_near)
         self.watch_third_lane = pick(watch_third_lane, prof.watch_third_lane)
+        self.ego_body_straddles = pick(ego_body_straddles, prof.ego_body_straddles)
         self.reaction_s, self.ego_brake, self.sv_brake = reaction_s, ego_brake_mps2, sv_brake_mps2
         self.rm = highway_reward_machine()
         self.target_lane: torch.Tensor | None = None  # (B,) long global T*; -1: not yet known
@@ -312,17 +316,15 @@ class SafetyLayer:
         return probe if same else world.neighbours(lanes.current_lane, lanes.adjacent_lane)
 
     def _third_lane(self, world, lanes: LaneModel, ego_x: torch.Tensor) -> Snapshot | None:
-        """The third lane's nearest cars (a query with it as the current lane) where the layer watches it
-        and the road has three lanes (a fact of the road, no host read); None otherwise."""
+        """The third lane's nearest cars where the layer watches it on a road of three lanes; None otherwise."""
         if not self.watch_third_lane or self.road.num_lanes < 3:
             return None
         lane = third_lane(self.road, lanes.base_lane, ego_x)
         return world.neighbours(lane, torch.full_like(lane, NO_LANE))
 
     def _rule(self, gaps: torch.Tensor, ego_vx: torch.Tensor, sv_vx: torch.Tensor, front: torch.Tensor) -> torch.Tensor:
-        """R_SV (Eq. 26) of bumper gaps (B, K) with the standstill margin taken off: the SD rule treats cars
-        as points (collision iff gap <= 0); the margin covers rotated boxes (a 2 m wide car at 0.1 rad reaches
-        0.1 m further) and the controller's discrete steps."""
+        """R_SV (Eq. 26) of bumper gaps (B, K) less the standstill margin: the SD rule treats cars as points;
+        the margin covers rotated boxes (0.1 m at 0.1 rad for a 2 m wide car) and the controller's steps."""
         return rule_indicator(gaps - self.standstill_gap_m, ego_vx[:, None], sv_vx, front=front,
                               reaction_s=self.reaction_s, ego_brake=self.ego_brake, other_brake=self.sv_brake,
                               literal=self.literal_sd)
@@ -354,9 +356,10 @@ class SafetyLayer:
         m_l_ego = near_boundary(ego_y_local, snap.ego_heading, lane_width_m=w)
         m_l_sv = self._near_line(sv_y_local, veh, ego_y_local, w)
         _, r_star = rule_mapping(r_sv, m_l_ego, m_l_sv, dx, eps_s_m=self.eps_s_m, grouped=self.grouped)
+        straddles = m_l_ego | crosses_line(ego_y_local, snap.ego_heading, w) if self.ego_body_straddles else m_l_ego
         if self.straddle_grouping:
-            r_star = straddle_grouping(r_star, m_l_ego)
-        room = self._front_room(gaps, veh, m_l_sv, m_l_ego, cars) if self.last_resort_stops else None
+            r_star = straddle_grouping(r_star, straddles)
+        room = self._front_room(gaps, veh, m_l_sv, straddles, cars) if self.last_resort_stops else None
         mask = safe_action_mask_from(r_star)
         t_id = (target_global - lanes.base_lane).clamp(0, 1)
         d_vl = (ego_y_local - t_id.to(ego_x.dtype) * w).abs()
@@ -388,8 +391,7 @@ class SafetyLayer:
 
     def _front_room(self, gaps: torch.Tensor, veh: Vehicles, m_l_sv: torch.Tensor, m_l_ego: torch.Tensor,
                     cars) -> torch.Tensor:
-        """front_room of this model: SV2 counts where Eq. 32 (or the straddle grouping) joins it to R*1, a
-        third-lane car where it joins the SV1 or SV2 slot."""
+        """front_room: SV2 where Eq. 32 or the straddle grouping joins it to R*1, a third-lane car in its slot."""
         sv2_joins = (m_l_sv[:, 0] | m_l_sv[:, 1]) if self.grouped else m_l_sv[:, 0]
         if self.straddle_grouping:
             sv2_joins = sv2_joins | m_l_ego

@@ -15,23 +15,18 @@ from pathlib import Path
 import pytest
 
 from highway_srl.experiments import falsify as fz
-from highway_srl.rules.avoidable import SIDE_SWIPE, STOOD
+from highway_srl.rules.avoidable import SIDE_SWIPE, STOOD, ego_avoidable
 
 CASES = sorted((Path(__file__).parent / "cases").glob("*.json"))
-# counterexamples the safe profile does not close yet, with what is missing
-OPEN = {
-    "safe-nose-over-the-line-after-an-aborted-change-multi-lane-F.json":
-        "the ego aborts a change from lane 2 at -0.54 rad and keeps drifting toward lane 1, its nose 1.2 m over "
-        "the line; Eq. 31 flags no corner of the ego (none within 0.5 m of the line, the centre 0.72-0.95 m off "
-        "it), so the straddle grouping does not join the car standing 6 m ahead in lane 1 (R2 = 0) to R*1 and "
-        "Faster stays allowed until the ego's centre is within 0.6 m of the line",
-}
+# counterexamples the safe profile does not close yet, with what is missing (none at present)
+OPEN: dict[str, str] = {}
 # safe-profile cases whose collision is not the ego's to avoid (rules.avoidable), with the verdict's reason:
 # the ego stood through the trace with no allowed move; the ego stood centred with a target lane it had not
 # moved toward while a car from the far lane behind it turned in (RSS: a car at standstill is not responsible)
+# (who was changing lanes at contact, ego and SV, as the trace classified it: the records do not keep it)
 UNAVOIDABLE = {
-    "safe-standing-ego-side-cut-in-multi-lane-F-adversarial.json": STOOD,
-    "safe-greedy-standing-change-hit-from-the-side-merge-C-adversarial.json": SIDE_SWIPE,
+    "safe-standing-ego-side-cut-in-multi-lane-F-adversarial.json": (False, True, STOOD),
+    "safe-greedy-standing-change-hit-from-the-side-merge-C-adversarial.json": (True, True, SIDE_SWIPE),
 }
 # the safe-profile addition whose absence reproduces a case found under the safe profile
 CLOSED_BY = {
@@ -44,6 +39,8 @@ CLOSED_BY = {
     # multi-lane: a car of the lane the acting two-lane model does not hold, reaching into the ego's path
     **dict.fromkeys(["safe-cut-in-from-the-unseen-lane-multi-lane-C-adversarial.json",
                      "safe-greedy-unseen-lane-tail-over-the-line-multi-lane-F.json"], {"watch_third_lane": False}),
+    # an ego drifting on after an aborted change, its nose over the line, Eq. 31 flagging none of its corners
+    "safe-nose-over-the-line-after-an-aborted-change-multi-lane-F.json": {"ego_body_straddles": False},
 }
 
 
@@ -83,9 +80,11 @@ def test_a_safe_profile_hole_comes_back_without_its_addition(name):
 
 @pytest.mark.parametrize("name", sorted(UNAVOIDABLE))
 def test_a_standing_ego_hit_from_the_side_is_judged_unavoidable(name):
-    result = fz.replay_case(fz.load_case(Path(__file__).parent / "cases" / name), "safe", substitute=True)
-    assert result["confirmed"] and not result["ego_avoidable"], result
-    assert result["cause"].endswith(UNAVOIDABLE[name])
+    """The verdict on the collision as the falsifier traced it (the case's record; under today's safe profile
+    the replay may take another path)."""
+    rec = fz.load_case(Path(__file__).parent / "cases" / name).record
+    ego_changing, sv_changing, reason = UNAVOIDABLE[name]
+    assert ego_avoidable(rec["kind"], ego_changing, sv_changing, rec["decisions"]) == (False, reason)
 
 
 def test_the_cli_replays_a_paper_case_under_safe_with_substitutes(capsys):

@@ -1,7 +1,7 @@
 """Control profiles of the SafetyLayer (docs/paper-notes.md, "Profiles: paper vs safe").
 
 `paper` = Eqs. 31-35 as printed plus the hold of a lane change under way; `safe` = today's behaviour with
-our nine additions. One crafted situation per addition where the two profiles differ exactly as documented,
+our ten additions. One crafted situation per addition where the two profiles differ exactly as documented,
 and a golden test of Eqs. 31-35 under `paper`.
 """
 
@@ -27,10 +27,10 @@ def test_safe_is_the_default_profile_and_equals_the_previous_defaults():
     assert layer.profile == "safe"
     options = lambda lay: (lay.abort_unsafe_change, lay.brake_while_changing, lay.finish_in_window,  # noqa: E731
                            lay.straddle_grouping, lay.standstill_gap_m, lay.turning_in_is_near, lay.last_resort_stops,
-                           lay.reaching_over_is_near, lay.watch_third_lane)
-    assert options(layer) == (True, True, True, True, 1.0, True, True, True, True)
+                           lay.reaching_over_is_near, lay.watch_third_lane, lay.ego_body_straddles)
+    assert options(layer) == (True, True, True, True, 1.0, True, True, True, True, True)
     paper = SafetyLayer(make_road("two-lane"), profile="paper")
-    assert options(paper) == (False, False, False, False, 0.0, False, False, False, False)
+    assert options(paper) == (False, False, False, False, 0.0, False, False, False, False, False)
     assert paper.hold_lane_change and layer.hold_lane_change  # both hold a change under way
     assert set(PROFILES) == {"paper", "safe"}
 
@@ -142,6 +142,20 @@ def test_a_car_with_its_tail_over_the_line_counts_as_near_the_boundary_only_unde
     for name, layer in cases.items():
         p = layer.observe(hand_world(road, scene)).primary
         assert p.r_sv[0, :2].tolist() == [True, False], name
+        assert p.mask[0, FASTER].item() is (name != "safe"), name
+
+
+def test_an_ego_with_its_nose_over_the_line_occupies_both_lanes_only_under_safe(hand_world):
+    """ego_body_straddles: the traced multi-lane F case in two lanes. The ego drifts from lane 1 toward lane
+    0 at -0.541 rad, centre 0.95 m from the line, its nose 1.2 m over it; Eq. 31 flags none of its corners
+    (the nearest 0.52 m from the line). A car stands 5.6 m ahead in lane 0 (R2 = 0), nothing ahead in lane 1
+    (R1 = 1): paper, and safe without the addition, allow Faster; safe joins R2 to R*1."""
+    road = make_road("two-lane")
+    scene = [{"ego": (0.0, W - 0.8, 2.1, -0.541), "svs": [(5.6, 0.0, 0.0, 0.0)]}]
+    cases = {**layers(road), "safe without it": SafetyLayer(road, ego_body_straddles=False)}
+    for name, layer in cases.items():
+        p = layer.observe(hand_world(road, scene)).primary
+        assert p.m_l_ego.tolist() == [False] and p.r_sv[0, :2].tolist() == [True, False], name
         assert p.mask[0, FASTER].item() is (name != "safe"), name
 
 
