@@ -22,10 +22,8 @@ import collections
 import torch
 
 from highway_srl.constants import VEHICLE_WIDTH_M
-from highway_srl.rules.avoidable import ego_avoidable
+from highway_srl.rules.avoidable import OFF_CENTRE_M, ego_avoidable
 from highway_srl.sim.box_geometry import boxes_overlap
-
-OFF_CENTRE_M = 0.5  # a centre this far off its lane's centre is taken as changing lanes
 
 
 def classify(world, envs: torch.Tensor) -> list[dict]:

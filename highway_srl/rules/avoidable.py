@@ -13,7 +13,9 @@ its kind (front, rear, side, road), who was changing lanes, and per decision the
 actions and the longitudinal and lateral offsets and speeds of the vehicle that was hit. Cases, in order:
   1. an action the rule layer forbade was executed: avoidable (any allowed action was a choice);
   2. road (a lane end, a barrier, the road's edge): avoidable (the ego's own path);
-  3. the ego was changing lanes: avoidable (it changed into an occupied or closing gap);
+  3. the ego was changing lanes: avoidable (it changed into an occupied or closing gap); not an ego that
+     stood on its lane's centre through the whole trace with a target lane it had not begun to move to
+     (a standing car does not move sideways): it is judged by the cases below;
   4. front: unavoidable only if the car it hit came into its path within the trace (seen out of it first,
      or out of it at the last decision) at a bumper gap the ego could not stop in, braking at its limit
      at once while that car braked at its own (room_to_stop); avoidable otherwise, also when the car was
@@ -22,6 +24,10 @@ actions and the longitudinal and lateral offsets and speeds of the vehicle that 
      is avoidable, one that turned in alongside or below the stopping distance is not); else avoidable;
   6. rear: avoidable if the ego braked (Slower) while the car ahead did not require it (R*1 = 1) and the
      hit car behind was inside the RSS distance it needed to stop for the ego; else unavoidable.
+Before 4 and 5: the ego stood through the whole trace and no decision allowed it to move (Faster, the only
+action that moves a standing ego, never allowed): unavoidable. RSS's proper response, longitudinal and
+lateral, ends at zero speed; a car at standstill with no allowed move has performed it, and the car that
+moved into it is responsible.
 Doubtful cases fall on the avoidable side: a claim of zero avoidable collisions must not rest on them.
 """
 
@@ -49,6 +55,7 @@ PATH_MARGIN_M = LANE_WIDTH_M / 2 + EPS_P_M - VEHICLE_WIDTH_M / 2
 
 FORBIDDEN_ACTION = "executed an action the rule layer forbade"
 ROAD = "left the road or ran into a lane end"
+STOOD = "stood with no allowed move while a car moved into it"
 EGO_CHANGED = "changed lanes into an occupied or closing gap"
 RAN_INTO = "ran into the car ahead with room to stop"
 CUT_IN = "cut in ahead below the ego's stopping distance"
@@ -58,7 +65,8 @@ SIDE_KEEPING = "side contact with neither car changing lanes"
 NEEDLESS_BRAKE = "braked without need in front of a close follower"
 REAR = "hit from behind by a car that did not brake for the ego"
 AVOIDABLE_REASONS = (FORBIDDEN_ACTION, ROAD, EGO_CHANGED, RAN_INTO, SIDE_ROOM, SIDE_KEEPING, NEEDLESS_BRAKE)
-UNAVOIDABLE_REASONS = (CUT_IN, SIDE_SWIPE, REAR)
+UNAVOIDABLE_REASONS = (STOOD, CUT_IN, SIDE_SWIPE, REAR)
+OFF_CENTRE_M = 0.5  # a centre this far off its lane's centre is taken as changing lanes
 
 
 def rss_safe_distance(v_rear: Num, v_front: Num, *, response_s: Num = DT_S, accel_max: Num = EGO_ACCEL_MAX_MPS2,
@@ -120,12 +128,14 @@ def ego_avoidable(kind: str, ego_changing: bool, sv_changing: bool, rows: list[d
         return True, FORBIDDEN_ACTION
     if kind == "road":
         return True, ROAD
-    if ego_changing:
+    if ego_changing and not (stood(rows) and _on_lane_centre(rows[-1])):
         return True, EGO_CHANGED
-    if kind == "side":
-        return entry_verdict(rows, SIDE_ROOM, SIDE_SWIPE) if sv_changing else (True, SIDE_KEEPING)
     if kind == "rear":
         return (True, NEEDLESS_BRAKE) if any(_needless_brake(r) for r in rows) else (False, REAR)
+    if stood(rows) and not any("Faster" in r["allowed"] for r in rows):
+        return False, STOOD
+    if kind == "side":
+        return entry_verdict(rows, SIDE_ROOM, SIDE_SWIPE) if sv_changing else (True, SIDE_KEEPING)
     return entry_verdict(rows, RAN_INTO, CUT_IN)
 
 
@@ -144,6 +154,19 @@ def entry_verdict(rows: list[dict], avoidable_reason: str, unavoidable_reason: s
     r = rows[i]
     gap = r["dx"] - VEHICLE_LENGTH_M
     return (True, avoidable_reason) if room_to_stop(gap, r["v"], r["v_sv"]) else (False, unavoidable_reason)
+
+
+def stood(rows: list[dict]) -> bool:
+    """The ego stood through the whole trace: at standstill in the state of every decision and never
+    executing Faster, the only action that moves a standing ego (the others' target speeds are at most v)."""
+    return bool(rows) and all(r["v"] == 0.0 and r["action"] != "Faster" for r in rows)
+
+
+def _on_lane_centre(row: dict) -> bool:
+    """The ego's centre within OFF_CENTRE_M of its lane's centre (lane k's centre at k w_L) at this decision."""
+    if row.get("y") is None or row.get("lane") is None:
+        return False
+    return abs(row["y"] - row["lane"] * LANE_WIDTH_M) <= OFF_CENTRE_M
 
 
 def _needless_brake(row: dict) -> bool:

@@ -251,19 +251,36 @@ def near_boundary(
     return (delta_min < eps_p_m) | ((y_local - y_lane).abs() < eps_d_m)
 
 
-def crossing_toward(y_local: torch.Tensor, heading: torch.Tensor, ego_y_local: torch.Tensor,
-                    lane_width_m: float = LANE_WIDTH_M) -> torch.Tensor:
-    """(...) bool: a car whose body crosses the pair's lane line (corners on both sides of y_local = w_L/2)
-    while it heads toward the ego's side of the line. The safe profile ORs it into m*_L,SV (Eq. 31): at a
-    large heading Eq. 31 misses such a car (a 5 m car turning in at 0.54 rad with its centre 1.1 m short of
-    the line has its nose 1 m over it and no corner within ε_p of it). Cars turning away are left out: a
-    leader leaving the ego's lane must not block the ego's own change. y_local, heading: (B, K) or (...);
-    ego_y_local broadcasts against them."""
+def crosses_line(y_local: torch.Tensor, heading: torch.Tensor, lane_width_m: float = LANE_WIDTH_M) -> torch.Tensor:
+    """(...) bool: a car's body crosses the pair's lane line (its corners lie on both sides of y_local = w_L/2)."""
     x0 = torch.zeros_like(y_local)
     _, cy = corner_points(x0, y_local, heading, VEHICLE_LENGTH_M, VEHICLE_WIDTH_M)
     y_lane = 0.5 * lane_width_m
-    crosses = (cy.min(dim=-1).values < y_lane) & (cy.max(dim=-1).values > y_lane)
-    return crosses & ((ego_y_local - y_local) * torch.sin(heading) > 0)
+    return (cy.min(dim=-1).values < y_lane) & (cy.max(dim=-1).values > y_lane)
+
+
+def crossing_toward(y_local: torch.Tensor, heading: torch.Tensor, ego_y_local: torch.Tensor,
+                    lane_width_m: float = LANE_WIDTH_M) -> torch.Tensor:
+    """(...) bool: a car whose body crosses the pair's lane line (crosses_line) while it heads toward the
+    ego's side of the line. The safe profile ORs it into m*_L,SV (Eq. 31): at a large heading Eq. 31 misses
+    such a car (a 5 m car turning in at 0.54 rad with its centre 1.1 m short of the line has its nose 1 m
+    over it and no corner within ε_p of it). Cars turning away are left out here: a leader leaving the ego's
+    lane must not block the ego's own change (reaching_over takes the one whose centre has left). y_local,
+    heading: (B, K) or (...); ego_y_local broadcasts against them."""
+    return crosses_line(y_local, heading, lane_width_m) & ((ego_y_local - y_local) * torch.sin(heading) > 0)
+
+
+def reaching_over(y_local: torch.Tensor, heading: torch.Tensor, ego_y_local: torch.Tensor,
+                  lane_width_m: float = LANE_WIDTH_M) -> torch.Tensor:
+    """(...) bool: a car whose centre is on the far side of the pair's lane line from the ego's while its
+    body crosses the line, whichever way it heads: its tail (or nose) is in the ego's lane. The safe profile
+    ORs it into m*_L,SV (Eq. 31): a car standing mid-change at 0.453 rad with its centre 1.15 m beyond the
+    line has its tail 0.84 m into the ego's lane and no corner within ε_p of the line, and it heads away
+    from the ego, so neither Eq. 31 nor crossing_toward flags it. y_local, heading: (B, K) or (...);
+    ego_y_local broadcasts against them."""
+    y_lane = 0.5 * lane_width_m
+    far_side = (y_local - y_lane) * (ego_y_local - y_lane) < 0
+    return crosses_line(y_local, heading, lane_width_m) & far_side
 
 
 def rule_mapping(
@@ -300,6 +317,16 @@ def rule_mapping(
     pair = torch.stack([front, front, rear, rear], dim=1)
     r_star = torch.where(m, pair, r_prime)
     return r_prime, r_star
+
+
+def straddle_grouping(r_star: torch.Tensor, m_l_ego: torch.Tensor) -> torch.Tensor:
+    """Eq. 32 extended to the ego: while the ego is near the boundary (m*_L,EV = 1) it occupies both lanes,
+    so the front rule is R*1 ∧ R*2 and the rear rule R*3 ∧ R*4 (the paper groups only for SVs near the
+    boundary). Without it an ego that crossed the boundary and returned, or one finishing a change with
+    Idle, drove into a vehicle it no longer tracked as SV1. r_star (B, 4), m_l_ego (B,) -> (B, 4)."""
+    front = torch.where(m_l_ego, r_star[:, 0] & r_star[:, 1], r_star[:, 0])
+    rear = torch.where(m_l_ego, r_star[:, 2] & r_star[:, 3], r_star[:, 2])
+    return torch.stack([front, r_star[:, 1], rear, r_star[:, 3]], 1)
 
 
 # --------------------------------------------------------------------------- action and control mapping
@@ -363,6 +390,25 @@ def target_speed(
     dv = torch.where(action == FASTER, torch.full_like(dv, dv_accel_mps), dv)
     dv = torch.where(action == SLOWER, torch.full_like(dv, -dv_decel_mps), dv)
     return (v_mps + dv).clamp(0.0, v_max_mps)
+
+
+def room_ahead(gap_m: torch.Tensor, sv_vx: torch.Tensor, margin_m: float, sv_brake_mps2: float) -> torch.Tensor:
+    """The distance the ego may cover behind a car gap_m ahead (bumper gap) before it must stand: up to
+    where that car would stand braking at its limit now (Eq. 20: v_SV² / 2|a_SV| beyond the gap), less the
+    standstill margin. Any shape."""
+    return gap_m - margin_m + sv_vx.clamp(min=0.0) ** 2 / (2.0 * sv_brake_mps2)
+
+
+def front_room(gaps_m: torch.Tensor, sv_vx: torch.Tensor, sv2_joins: torch.Tensor, margin_m: float,
+               sv_brake_mps2: float, extra_m: torch.Tensor | None = None) -> torch.Tensor:
+    """(B,) the distance the ego may cover before it must stand: room_ahead of SV1, or of the nearer of SV1
+    and SV2 where sv2_joins (B,) (Eq. 32 or the straddle grouping makes R*1 answer for SV2 too). gaps_m,
+    sv_vx (B, 4) as in ModelStep; extra_m (B, 2), optional: more room limits of the SV1 and SV2 slots (a
+    third-lane car joining them)."""
+    room = room_ahead(gaps_m[:, :2], sv_vx[:, :2], margin_m, sv_brake_mps2)
+    if extra_m is not None:
+        room = torch.minimum(room, extra_m)
+    return torch.where(sv2_joins, room.min(1).values, room[:, 0])
 
 
 def stopping_speed(v_mps: torch.Tensor, room_m: torch.Tensor, brake_mps2: float = EGO_BRAKE_MAX_MPS2,

@@ -35,13 +35,17 @@ from highway_srl.rules.mappings import (
     Vehicles,
     change_fits_window,
     crossing_allowed,
+    crossing_toward,
+    crosses_line,
     fill_defaults,
+    front_room,
     id_mapping,
     lane_exists,
-    crossing_toward,
     near_boundary,
+    reaching_over,
     rule_mapping,
     stopping_speed,
+    straddle_grouping,
     target_lane_local,
     target_speed,
 )
@@ -55,6 +59,7 @@ from highway_srl.rules.reward_machine import (
 )
 from highway_srl.rules.safe_actions import IDLE, LANE_CHANGE, SLOWER, safe_action_mask_from
 from highway_srl.rules.safe_distance import rule_indicator
+from highway_srl.rules.third_lane import third_lane, third_lane_cars, third_lane_room, with_third_lane
 from highway_srl.sim.road import Road
 from highway_srl.sim.snapshot import Snapshot
 
@@ -73,8 +78,11 @@ class ControlProfile:
     the SD rule; turning_in_is_near: an SV whose body crosses the lane line while it heads toward the ego's
     side is near it in Eq. 31 (mappings.crossing_toward); last_resort_stops: Idle as Table 1's last resort
     (R*1 = 0, so Idle is the only safe action) brakes just hard enough to stop within the room ahead
-    (mappings.stopping_speed) instead of keeping the speed. docs/paper-notes.md, "Profiles: paper vs safe",
-    gives each with the crash that motivated it.
+    (mappings.stopping_speed) instead of keeping the speed; reaching_over_is_near: an SV whose centre is
+    beyond the line while its body crosses it is near it (mappings.reaching_over); watch_third_lane: cars of
+    the lane the model does not hold join the rules of the lane they reach into (rules.third_lane);
+    ego_body_straddles: the straddle grouping also holds while the ego's body crosses the line. docs/
+    paper-notes.md, "Profiles: paper vs safe", gives each with the crash that motivated it.
     """
 
     abort_unsafe_change: bool
@@ -84,13 +92,16 @@ class ControlProfile:
     standstill_gap_m: float
     turning_in_is_near: bool
     last_resort_stops: bool
+    reaching_over_is_near: bool
+    watch_third_lane: bool
+    ego_body_straddles: bool
 
 
 # paper: Eqs. 31-35 as printed plus only the readings they cannot work without (holding a change under way);
 # safe: the project's additions on top, each justified by a measured crash.
 PROFILES: dict[str, ControlProfile] = {
-    "paper": ControlProfile(False, False, False, False, 0.0, False, False),
-    "safe": ControlProfile(True, True, True, True, STANDSTILL_GAP_M, True, True),
+    "paper": ControlProfile(False, False, False, False, 0.0, False, False, False, False, False),
+    "safe": ControlProfile(True, True, True, True, STANDSTILL_GAP_M, True, True, True, True, True),
 }
 
 
@@ -104,11 +115,12 @@ def control_profile(name: str) -> ControlProfile:
 @dataclass
 class ModelStep:
     """One two-lane model's view of the step, all (B, ...): obs (B, 37) float32; mask (B, 4) bool in
-    ACTIONS order; rm_state (B,) long u*; r_rm (B,) RM reward; r_sv / r_star (B, 4) bool R_SVi and R*_SVi;
+    ACTIONS order; rm_state (B,) long u*; r_rm (B,) RM reward; r_sv / r_star (B, 4) bool R_SVi (a third-lane
+    car joining a slot included, watch_third_lane) and R*_SVi;
     m_l_ego (B,) bool; t_id (B,) long local T*_ID used for d_VL; v_star (B,) m/s; speed_ratio (B,) v/v*
     (clipped, for the deployment reward); gaps_m (B, 4) bumper gaps; vehicles: SV1..SV4 with defaults;
     lanes: the ID mapping of this model; front_room_m (B,) the distance the ego may cover before it must
-    stand (front_room)."""
+    stand (front_room), None where the layer does not stop at the last resort (nothing reads it)."""
 
     obs: torch.Tensor
     mask: torch.Tensor
@@ -123,7 +135,7 @@ class ModelStep:
     gaps_m: torch.Tensor
     vehicles: Vehicles
     lanes: LaneModel
-    front_room_m: torch.Tensor
+    front_room_m: torch.Tensor | None
 
     def scoring_r_rm(self) -> torch.Tensor:
         """(B,) r_RM of the paper's mapped rules, what every method's episodes are scored with (the RM return
@@ -151,27 +163,9 @@ class SafetyStep:
         return where_tree(pick, self.second, self.primary)
 
 
-def straddle_grouping(r_star: torch.Tensor, m_l_ego: torch.Tensor) -> torch.Tensor:
-    """Eq. 32 extended to the ego: while the ego is near the boundary (m*_L,EV = 1) it occupies both lanes,
-    so the front rule is R*1 ∧ R*2 and the rear rule R*3 ∧ R*4 (the paper groups only for SVs near the
-    boundary). Without it an ego that crossed the boundary and returned, or one finishing a change with
-    Idle, drove into a vehicle it no longer tracked as SV1. r_star (B, 4), m_l_ego (B,) -> (B, 4)."""
-    front = torch.where(m_l_ego, r_star[:, 0] & r_star[:, 1], r_star[:, 0])
-    rear = torch.where(m_l_ego, r_star[:, 2] & r_star[:, 3], r_star[:, 2])
-    return torch.stack([front, r_star[:, 1], rear, r_star[:, 3]], 1)
-
-
-def front_room(gaps_m: torch.Tensor, sv_vx: torch.Tensor, sv2_joins: torch.Tensor, margin_m: float,
-               sv_brake_mps2: float) -> torch.Tensor:
-    """(B,) the distance the ego may cover before it must stand: up to the point where the front vehicle
-    would stand if it braked at its limit now (Eq. 20's stopping distance v_SV² / 2|a_SV| beyond its bumper
-    gap), less the standstill margin; the nearer of SV1 and SV2 where sv2_joins (B,) (Eq. 32 or the
-    straddle grouping makes R*1 answer for SV2 too). gaps_m, sv_vx (B, 4) as in ModelStep."""
-    room = gaps_m[:, :2] - margin_m + sv_vx[:, :2].clamp(min=0.0) ** 2 / (2.0 * sv_brake_mps2)
-    return torch.where(sv2_joins, room.min(1).values, room[:, 0])
-
-
 def where_tree(pick: torch.Tensor, a, b):
+    if a is None:  # a field the layer does not compute (ModelStep.front_room_m), None in both
+        return None
     if isinstance(a, torch.Tensor):
         p = pick.reshape(pick.shape + (1,) * (a.dim() - 1))
         return torch.where(p, a, b)
@@ -224,6 +218,9 @@ class SafetyLayer:
         straddle_grouping: bool | None = None,
         turning_in_is_near: bool | None = None,
         last_resort_stops: bool | None = None,
+        reaching_over_is_near: bool | None = None,
+        watch_third_lane: bool | None = None,
+        ego_body_straddles: bool | None = None,
         reaction_s: float = DT_S,
         ego_brake_mps2: float = EGO_BRAKE_MAX_MPS2,
         sv_brake_mps2: float = SV_BRAKE_MAX_MPS2,
@@ -244,6 +241,9 @@ class SafetyLayer:
         self.straddle_grouping = pick(straddle_grouping, prof.straddle_grouping)
         self.turning_in_is_near = pick(turning_in_is_near, prof.turning_in_is_near)
         self.last_resort_stops = pick(last_resort_stops, prof.last_resort_stops)
+        self.reaching_over_is_near = pick(reaching_over_is_near, prof.reaching_over_is_near)
+        self.watch_third_lane = pick(watch_third_lane, prof.watch_third_lane)
+        self.ego_body_straddles = pick(ego_body_straddles, prof.ego_body_straddles)
         self.reaction_s, self.ego_brake, self.sv_brake = reaction_s, ego_brake_mps2, sv_brake_mps2
         self.rm = highway_reward_machine()
         self.target_lane: torch.Tensor | None = None  # (B,) long global T*; -1: not yet known
@@ -280,12 +280,12 @@ class SafetyLayer:
         self.target_lane = target
         ids: IdMapping = id_mapping(road, probe.ego_x, ego_lane, target)
         snap = self._snapshot(world, probe, ids.primary, self.static)
-        primary = self._model_step(snap, ids.primary, target)
+        primary = self._model_step(snap, ids.primary, target, self._third_lane(world, ids.primary, probe.ego_x))
         # where two_models is False, second repeats primary; the static form computes it wherever the road has
         # a middle lane (a fact of the road, no host read), which only multi-lane has
         if (self.static and road.mainline_lanes >= 3) or (not self.static and bool(ids.two_models.any())):
             snap_b = world.neighbours(ids.second.current_lane, ids.second.adjacent_lane)
-            second = self._model_step(snap_b, ids.second, target)
+            second = self._model_step(snap_b, ids.second, target, self._third_lane(world, ids.second, probe.ego_x))
         else:
             second = primary
         self._query = (ids.primary.current_lane, ids.primary.adjacent_lane)
@@ -317,33 +317,51 @@ class SafetyLayer:
         )
         return probe if same else world.neighbours(lanes.current_lane, lanes.adjacent_lane)
 
-    def _model_step(self, snap: Snapshot, lanes: LaneModel, target_global: torch.Tensor) -> ModelStep:
+    def _third_lane(self, world, lanes: LaneModel, ego_x: torch.Tensor) -> Snapshot | None:
+        """The third lane's nearest cars where the layer watches it on a road of three lanes; None otherwise."""
+        if not self.watch_third_lane or self.road.num_lanes < 3:
+            return None
+        lane = third_lane(self.road, lanes.base_lane, ego_x)
+        return world.neighbours(lane, torch.full_like(lane, NO_LANE))
+
+    def _rule(self, gaps: torch.Tensor, ego_vx: torch.Tensor, sv_vx: torch.Tensor, front: torch.Tensor) -> torch.Tensor:
+        """R_SV (Eq. 26) of bumper gaps (B, K) less the standstill margin: the SD rule treats cars as points;
+        the margin covers rotated boxes (0.1 m at 0.1 rad for a 2 m wide car) and the controller's steps."""
+        return rule_indicator(gaps - self.standstill_gap_m, ego_vx[:, None], sv_vx, front=front,
+                              reaction_s=self.reaction_s, ego_brake=self.ego_brake, other_brake=self.sv_brake,
+                              literal=self.literal_sd)
+
+    def _near_line(self, sv_y_local: torch.Tensor, veh: Vehicles, ego_y_local: torch.Tensor, w: float) -> torch.Tensor:
+        """m*_L,SV (Eq. 31) of SV1..SV4 (B, 4), with the profile's additions (turning in, reaching over)."""
+        m_l_sv = near_boundary(sv_y_local, veh.heading, lane_width_m=w)
+        if self.turning_in_is_near:
+            m_l_sv |= crossing_toward(sv_y_local, veh.heading, ego_y_local[:, None], lane_width_m=w)
+        if self.reaching_over_is_near:
+            m_l_sv |= reaching_over(sv_y_local, veh.heading, ego_y_local[:, None], lane_width_m=w)
+        return m_l_sv & ~veh.virtual
+
+    def _model_step(self, snap: Snapshot, lanes: LaneModel, target_global: torch.Tensor,
+                    third: Snapshot | None = None) -> ModelStep:
         w = self.road.lane_width_m if hasattr(self.road, "lane_width_m") else LANE_WIDTH_M
         veh = fill_defaults(snap, lanes.c_id, lanes.default_adjacent)
         ego_x, ego_vx = snap.ego_x, snap.ego_vx
         front = torch.tensor(FRONT_SLOTS, device=ego_x.device)
         dx = veh.x - ego_x[:, None]
         gaps = torch.where(front, dx, -dx) - VEHICLE_LENGTH_M
-        # the SD rule treats cars as points (collision iff gap <= 0); keep a standstill margin for rotated
-        # boxes (a 2 m wide car at 0.1 rad reaches 0.1 m further) and the controller's discrete steps
-        r_sv = rule_indicator(
-            gaps - self.standstill_gap_m, ego_vx[:, None], veh.vx, front=front, reaction_s=self.reaction_s, ego_brake=self.ego_brake,
-            other_brake=self.sv_brake, literal=self.literal_sd,
-        )
+        r_sv = self._rule(gaps, ego_vx, veh.vx, front)
+        cars = None if third is None else third_lane_cars(third, lanes, w)
+        if cars is not None:  # the third lane's cars reaching into the near lane join its rules
+            r_sv = with_third_lane(r_sv, cars, self._rule(cars.gaps_m, ego_vx, cars.vx, front[[0, 2]]))
         base_y = lanes.base_lane.to(ego_x.dtype) * w
         ego_y_local = snap.ego_y - base_y
         sv_y_local = veh.y - base_y[:, None]
         m_l_ego = near_boundary(ego_y_local, snap.ego_heading, lane_width_m=w)
-        m_l_sv = near_boundary(sv_y_local, veh.heading, lane_width_m=w) & ~veh.virtual
-        if self.turning_in_is_near:
-            m_l_sv |= crossing_toward(sv_y_local, veh.heading, ego_y_local[:, None], lane_width_m=w) & ~veh.virtual
+        m_l_sv = self._near_line(sv_y_local, veh, ego_y_local, w)
         _, r_star = rule_mapping(r_sv, m_l_ego, m_l_sv, dx, eps_s_m=self.eps_s_m, grouped=self.grouped)
+        straddles = m_l_ego | crosses_line(ego_y_local, snap.ego_heading, w) if self.ego_body_straddles else m_l_ego
         if self.straddle_grouping:
-            r_star = straddle_grouping(r_star, m_l_ego)
-        sv2_joins = (m_l_sv[:, 0] | m_l_sv[:, 1]) if self.grouped else m_l_sv[:, 0]
-        if self.straddle_grouping:
-            sv2_joins = sv2_joins | m_l_ego
-        room = front_room(gaps, veh.vx, sv2_joins, self.standstill_gap_m, self.sv_brake)
+            r_star = straddle_grouping(r_star, straddles)
+        room = self._front_room(gaps, veh, m_l_sv, straddles, cars) if self.last_resort_stops else None
         mask = safe_action_mask_from(r_star)
         t_id = (target_global - lanes.base_lane).clamp(0, 1)
         d_vl = (ego_y_local - t_id.to(ego_x.dtype) * w).abs()
@@ -372,6 +390,15 @@ class SafetyLayer:
         )
         return ModelStep(obs, mask, u, r_rm, r_sv, r_star, m_l_ego, t_id, v_star, speed_ratio(ego_vx, v_star),
                          gaps, veh, lanes, room)
+
+    def _front_room(self, gaps: torch.Tensor, veh: Vehicles, m_l_sv: torch.Tensor, m_l_ego: torch.Tensor,
+                    cars) -> torch.Tensor:
+        """front_room: SV2 where Eq. 32 or the straddle grouping joins it to R*1, a third-lane car in its slot."""
+        sv2_joins = (m_l_sv[:, 0] | m_l_sv[:, 1]) if self.grouped else m_l_sv[:, 0]
+        if self.straddle_grouping:
+            sv2_joins = sv2_joins | m_l_ego
+        extra = None if cars is None else third_lane_room(cars, self.standstill_gap_m, self.sv_brake)
+        return front_room(gaps, veh.vx, sv2_joins, self.standstill_gap_m, self.sv_brake, extra)
 
     # ------------------------------------------------------------------ act
     def act(self, action: torch.Tensor, use_second: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:

@@ -53,8 +53,8 @@ class RawModelStep(ModelStep):
     """A ModelStep of the raw view. obs, mask (Table 1 over A* on raw R_SVi), rm_state, r_rm, r_sv (raw R_SVi),
     m_l_ego (centre test), t_id (global), v_star, gaps_m, vehicles, lanes: what the agent sees. r_star and
     speed_ratio: the mapped R*_SV and v/v* of the standard layer, for the deployment reward only (and
-    mapped_r_rm its r_RM, for the RM return every method is scored with); front_room_m: the mapped layer's,
-    unused (the raw view's Idle keeps the speed).
+    mapped_r_rm its r_RM, for the RM return every method is scored with); front_room_m: the mapped layer's
+    (None where its profile does not stop at the last resort), unused (the raw view's Idle keeps the speed).
     mask5 (B, 5) bool: the safe-action check over FIVE_ACTIONS (Faster ⇔ R1, Slower ⇔ R3, LaneLeft/Right ⇔
     the lane exists, may be crossed here and R2 ∧ R4 of that lane, Idle ⇔ R1 ∨ (¬R3 ∧ no lane change safe)).
     lane_left, lane_right (B,) long: the global lanes LaneLeft/LaneRight go to (the ego lane if none)."""

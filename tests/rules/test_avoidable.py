@@ -16,6 +16,7 @@ from highway_srl.rules.avoidable import (
     SIDE_KEEPING,
     SIDE_ROOM,
     SIDE_SWIPE,
+    STOOD,
     ego_avoidable,
     rss_safe_distance,
     stopping_distance_steps,
@@ -80,6 +81,34 @@ def test_the_ego_accelerating_into_a_stopped_car_is_avoidable():
     assert ego_avoidable("front", False, False, rows) == (True, RAN_INTO)
     rows[-1]["allowed"] = ["Slower"]  # and with Faster forbidden at the last decision, that is named first
     assert ego_avoidable("front", False, False, rows) == (True, FORBIDDEN_ACTION)
+
+
+def test_a_standing_ego_with_no_allowed_move_is_not_responsible():
+    """RSS: a car at standstill has performed the proper response (zero speed, longitudinal and lateral).
+    The ego stands through the whole trace with Slower alone allowed while a car turning in stays within the
+    path margin (the traced multi-lane F case: without the standstill case doubt makes it avoidable)."""
+    alongside = [row(2.5 + 0.2 * k, dy=2.3 - 0.1 * k, v=0.0, v_sv=1.4, action="Slower", allowed=["Slower"])
+                 for k in range(8)]
+    assert ego_avoidable("side", False, True, alongside) == (False, STOOD)
+    assert ego_avoidable("front", False, True, alongside) == (False, STOOD)
+    # a move allowed at any decision, or the ego moving at one: doubt again, avoidable
+    assert ego_avoidable("side", False, True, [{**alongside[0], "allowed": ALL}, *alongside[1:]]) == (True, SIDE_ROOM)
+    assert ego_avoidable("side", False, True, [{**alongside[0], "v": 0.5}, *alongside[1:]]) == (True, SIDE_ROOM)
+    # behind: the rear case keeps its own reason
+    assert ego_avoidable("rear", False, False, [row(-6.0, v=0.0, v_sv=5.0, action="Slower", allowed=["Slower"], r1=False)]) == (False, REAR)
+
+
+def test_a_lane_change_target_the_standing_ego_has_not_moved_toward_is_not_changing_lanes():
+    """The traced merge C case: the ego stands centred in lane 1 (y 3.59) with LaneChange's target lane 2,
+    so the census counts it as changing lanes; a car from lane 0 behind turns in and meets its side. It has
+    not moved sideways, so the side case judges it (the car came in from out of the path, from behind:
+    no room, unavoidable). Off its lane's centre, or moving at one decision, it is changing lanes."""
+    standing = [{**row(-6.3 + 0.6 * k, dy=-3.5 + 0.3 * k, v=0.0, v_sv=6.0, action="LaneChange",
+                       allowed=["Faster", "Idle", "LaneChange"]), "y": 3.59, "lane": 1} for k in range(8)]
+    assert ego_avoidable("side", True, True, standing) == (False, SIDE_SWIPE)
+    assert ego_avoidable("side", True, True, [*standing[:-1], {**standing[-1], "y": 4.2}]) == (True, EGO_CHANGED)
+    assert ego_avoidable("side", True, True, [{**standing[0], "v": 1.0}, *standing[1:]]) == (True, EGO_CHANGED)
+    assert ego_avoidable("side", True, True, [{**s, "y": None} for s in standing]) == (True, EGO_CHANGED)
 
 
 def test_the_other_cases():

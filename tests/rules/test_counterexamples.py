@@ -3,8 +3,9 @@ falsifier's own case format). Each replays without an ego-avoidable collision un
 ego follows the recorded actions as far as the rule layer allows them, the most cautious allowed action
 where it does not: falsify.replay_case(substitute=True)). A case found under the paper profile is a hole
 of the printed equations: replayed under paper, its actions are all allowed and end in the same
-ego-avoidable collision. A case found under the safe profile is a hole the safe profile had: its collision
-comes back with the addition that closed it switched off."""
+ego-avoidable collision. A case found under the safe profile is either a hole the safe profile had (its
+collision comes back with the addition that closed it switched off) or a collision the verdict judges
+unavoidable (a standing ego hit from the side)."""
 
 from __future__ import annotations
 
@@ -14,31 +15,33 @@ from pathlib import Path
 import pytest
 
 from highway_srl.experiments import falsify as fz
+from highway_srl.rules.avoidable import SIDE_SWIPE, STOOD, ego_avoidable
 
 CASES = sorted((Path(__file__).parent / "cases").glob("*.json"))
-# counterexamples the safe profile does not close yet, with what is missing
-TAIL = ("a car standing mid-change, its tail over the line into the ego's lane: Eq. 31 flags no corner (none "
-        "within ε_p of the line, the centre more than 1.1 m off it) and it heads away from the ego, so neither Eq. 32 "
-        "nor turning_in_is_near groups it with the ego's lane")
-UNSEEN = ("multi-lane: the two-lane model the ego acts on (§3.3) holds two of the three lanes; a car of the third "
-          "lane that reaches into the ego's path is outside its view")
-OPEN = {
-    "safe-tail-over-the-line-two-lane-F-adversarial.json": TAIL,
-    "safe-greedy-tail-over-the-line-multi-lane-F.json": TAIL,
-    "safe-greedy-tail-over-the-line-merge-F.json": TAIL,
-    "safe-cut-in-from-the-unseen-lane-multi-lane-C-adversarial.json": UNSEEN,
-    "safe-greedy-unseen-lane-tail-over-the-line-multi-lane-F.json": UNSEEN,
-    "safe-standing-ego-side-cut-in-multi-lane-F-adversarial.json":
-        "the ego stands (only Slower allowed) while a car alongside cuts in and meets its side; the verdict "
-        "calls it ego-avoidable because that car stayed within the path margin for the whole 8-decision "
-        "trace (doubt falls on the avoidable side), not because the ego had a move",
-    "safe-greedy-standing-change-hit-from-the-side-merge-C-adversarial.json":
-        "the ego stands with a LaneChange target (no lateral move yet) when a car from the far lane behind it "
-        "meets its side; the verdict counts a target lane other than the ego's as changing lanes",
+# counterexamples the safe profile does not close yet, with what is missing (none at present)
+OPEN: dict[str, str] = {}
+# safe-profile cases whose collision is not the ego's to avoid (rules.avoidable), with the verdict's reason:
+# the ego stood through the trace with no allowed move; the ego stood centred with a target lane it had not
+# moved toward while a car from the far lane behind it turned in (RSS: a car at standstill is not responsible)
+# (who was changing lanes at contact, ego and SV, as the trace classified it: the records do not keep it)
+UNAVOIDABLE = {
+    "safe-standing-ego-side-cut-in-multi-lane-F-adversarial.json": (False, True, STOOD),
+    "safe-greedy-standing-change-hit-from-the-side-merge-C-adversarial.json": (True, True, SIDE_SWIPE),
 }
 # the safe-profile addition whose absence reproduces a case found under the safe profile
-CLOSED_BY = {f"safe-idle-only-into-a-standing-car-{where}.json": {"last_resort_stops": False}
-             for where in ("two-lane-F", "two-lane-F-adversarial", "multi-lane-F-adversarial", "exit-F-adversarial")}
+CLOSED_BY = {
+    **{f"safe-idle-only-into-a-standing-car-{where}.json": {"last_resort_stops": False}
+       for where in ("two-lane-F", "two-lane-F-adversarial", "multi-lane-F-adversarial", "exit-F-adversarial")},
+    # a car standing mid-change, its tail over the line into the ego's lane, heading away from it
+    **dict.fromkeys(["safe-tail-over-the-line-two-lane-F-adversarial.json",
+                     "safe-greedy-tail-over-the-line-multi-lane-F.json",
+                     "safe-greedy-tail-over-the-line-merge-F.json"], {"reaching_over_is_near": False}),
+    # multi-lane: a car of the lane the acting two-lane model does not hold, reaching into the ego's path
+    **dict.fromkeys(["safe-cut-in-from-the-unseen-lane-multi-lane-C-adversarial.json",
+                     "safe-greedy-unseen-lane-tail-over-the-line-multi-lane-F.json"], {"watch_third_lane": False}),
+    # an ego drifting on after an aborted change, its nose over the line, Eq. 31 flagging none of its corners
+    "safe-nose-over-the-line-after-an-aborted-change-multi-lane-F.json": {"ego_body_straddles": False},
+}
 
 
 def _params(paths):
@@ -48,7 +51,7 @@ def _params(paths):
 
 def test_the_suite_holds_every_kind_of_case():
     profiles = {fz.load_case(p).profile for p in CASES}
-    assert profiles == {"paper", "safe"} and set(OPEN) | set(CLOSED_BY) == {
+    assert profiles == {"paper", "safe"} and set(OPEN) | set(CLOSED_BY) | set(UNAVOIDABLE) == {
         p.name for p in CASES if fz.load_case(p).profile == "safe"}
 
 
@@ -71,7 +74,17 @@ def test_a_safe_profile_hole_comes_back_without_its_addition(name):
     case = fz.load_case(Path(__file__).parent / "cases" / name)
     result = fz.replay_case(case, "safe", **CLOSED_BY[name])
     assert result["confirmed"] and result["all_allowed"] and result["ego_avoidable"], result
-    assert not fz.replay_case(case, "safe")["collided"]
+    # with it: the recorded plan as far as the layer allows it (a forbidden action executed proves nothing)
+    assert not fz.replay_case(case, "safe", substitute=True)["collided"]
+
+
+@pytest.mark.parametrize("name", sorted(UNAVOIDABLE))
+def test_a_standing_ego_hit_from_the_side_is_judged_unavoidable(name):
+    """The verdict on the collision as the falsifier traced it (the case's record; under today's safe profile
+    the replay may take another path)."""
+    rec = fz.load_case(Path(__file__).parent / "cases" / name).record
+    ego_changing, sv_changing, reason = UNAVOIDABLE[name]
+    assert ego_avoidable(rec["kind"], ego_changing, sv_changing, rec["decisions"]) == (False, reason)
 
 
 def test_the_cli_replays_a_paper_case_under_safe_with_substitutes(capsys):

@@ -1,7 +1,7 @@
 """Control profiles of the SafetyLayer (docs/paper-notes.md, "Profiles: paper vs safe").
 
 `paper` = Eqs. 31-35 as printed plus the hold of a lane change under way; `safe` = today's behaviour with
-our seven additions. One crafted situation per addition where the two profiles differ exactly as documented,
+our ten additions. One crafted situation per addition where the two profiles differ exactly as documented,
 and a golden test of Eqs. 31-35 under `paper`.
 """
 
@@ -10,7 +10,8 @@ import torch
 
 from highway_srl.constants import DEFAULT_PROFILE
 from highway_srl.rules import PROFILES, RM_STATES, SafetyLayer, control_profile
-from highway_srl.rules.mappings import stopping_speed
+from highway_srl.rules.mappings import NO_LANE, crossing_toward, reaching_over, stopping_speed
+from highway_srl.rules.third_lane import third_lane
 from highway_srl.rules.raw import RawSafetyLayer
 from highway_srl.rules.safe_actions import FASTER, IDLE, LANE_CHANGE, SLOWER
 from highway_srl.sim.road import make_road
@@ -27,13 +28,12 @@ def test_the_default_profile_is_every_entry_points_and_each_profile_sets_its_add
     assert SafetyLayer(make_road("two-lane")).profile == DEFAULT_PROFILE
     assert RawSafetyLayer(make_road("two-lane")).mapped.profile == DEFAULT_PROFILE
     layer = SafetyLayer(make_road("two-lane"), profile="safe")
-    assert (layer.abort_unsafe_change, layer.brake_while_changing, layer.finish_in_window, layer.straddle_grouping,
-            layer.standstill_gap_m, layer.turning_in_is_near, layer.last_resort_stops) == (True, True, True, True, 1.0,
-                                                                                           True, True)
+    options = lambda lay: (lay.abort_unsafe_change, lay.brake_while_changing, lay.finish_in_window,  # noqa: E731
+                           lay.straddle_grouping, lay.standstill_gap_m, lay.turning_in_is_near, lay.last_resort_stops,
+                           lay.reaching_over_is_near, lay.watch_third_lane, lay.ego_body_straddles)
+    assert options(layer) == (True, True, True, True, 1.0, True, True, True, True, True)
     paper = SafetyLayer(make_road("two-lane"), profile="paper")
-    assert (paper.abort_unsafe_change, paper.brake_while_changing, paper.finish_in_window, paper.straddle_grouping,
-            paper.standstill_gap_m, paper.turning_in_is_near, paper.last_resort_stops) == (False, False, False, False,
-                                                                                           0.0, False, False)
+    assert options(paper) == (False, False, False, False, 0.0, False, False, False, False, False)
     assert paper.hold_lane_change and layer.hold_lane_change  # both hold a change under way
     assert set(PROFILES) == {"paper", "safe"}
 
@@ -131,6 +131,82 @@ def test_an_sv_turning_in_steeply_ahead_counts_as_near_the_boundary_only_under_s
         p = layer.observe(hand_world(road, scene)).primary
         assert p.r_sv[0, :2].tolist() == [True, False], name
         assert p.mask[0, FASTER].item() is (name == "paper"), name
+
+
+def test_a_car_with_its_tail_over_the_line_counts_as_near_the_boundary_only_under_safe(hand_world):
+    """reaching_over_is_near: the traced two-lane F case. Ego in lane 0 at 1.2 m/s; a car stands in lane 1
+    5.3 m ahead (0.3 m bumper gap, R2 = 0), centre 1.15 m beyond the line, heading away at 0.453 rad: its
+    tail is 0.84 m into the ego's lane, no corner within ε_p of the line, so Eq. 31 and turning_in_is_near
+    miss it. Nothing ahead in the ego's lane (R1 = 1): paper, and safe without the addition, allow Faster;
+    safe groups the car (R*1 = R'1 ∧ R'2 = 0)."""
+    road = make_road("two-lane")
+    scene = [{"ego": (0.0, 0.0, 1.2, 0.0), "svs": [(5.3, 2.9, 0.0, 0.453)]}]
+    cases = {**layers(road), "safe without it": SafetyLayer(road, reaching_over_is_near=False)}
+    for name, layer in cases.items():
+        p = layer.observe(hand_world(road, scene)).primary
+        assert p.r_sv[0, :2].tolist() == [True, False], name
+        assert p.mask[0, FASTER].item() is (name != "safe"), name
+
+
+def test_an_ego_with_its_nose_over_the_line_occupies_both_lanes_only_under_safe(hand_world):
+    """ego_body_straddles: the traced multi-lane F case in two lanes. The ego drifts from lane 1 toward lane
+    0 at -0.541 rad, centre 0.95 m from the line, its nose 1.2 m over it; Eq. 31 flags none of its corners
+    (the nearest 0.52 m from the line). A car stands 5.6 m ahead in lane 0 (R2 = 0), nothing ahead in lane 1
+    (R1 = 1): paper, and safe without the addition, allow Faster; safe joins R2 to R*1."""
+    road = make_road("two-lane")
+    scene = [{"ego": (0.0, W - 0.8, 2.1, -0.541), "svs": [(5.6, 0.0, 0.0, 0.0)]}]
+    cases = {**layers(road), "safe without it": SafetyLayer(road, ego_body_straddles=False)}
+    for name, layer in cases.items():
+        p = layer.observe(hand_world(road, scene)).primary
+        assert p.m_l_ego.tolist() == [False] and p.r_sv[0, :2].tolist() == [True, False], name
+        assert p.mask[0, FASTER].item() is (name != "safe"), name
+
+
+def test_reaching_over_takes_the_car_whose_centre_has_crossed_whichever_way_it_heads():
+    """Ego at y_local 0 (line at 1.75). A car 1.15 m beyond the line at ±0.453 rad has its body across the
+    line: reaching over either way, turning in only toward the ego. A leader leaving the ego's lane (centre
+    0.6 m short of the line, heading away) is neither; a car straight in its lane centre is neither."""
+    y = torch.tensor([2.9, 2.9, 1.15, 3.5])
+    heading = torch.tensor([0.453, -0.453, 0.453, 0.0])
+    ego = torch.zeros(4)
+    assert reaching_over(y, heading, ego).tolist() == [True, True, False, False]
+    assert crossing_toward(y, heading, ego).tolist() == [False, True, False, False]
+
+
+def test_the_third_lane_is_the_one_beside_the_pair_where_it_exists():
+    multi, two, merge = make_road("multi-lane"), make_road("two-lane"), make_road("merge")
+    x = torch.tensor([50.0, 50.0])
+    assert third_lane(multi, torch.tensor([0, 1]), x).tolist() == [2, 0]
+    assert third_lane(two, torch.tensor([0, 0]), x).tolist() == [NO_LANE, NO_LANE]
+    far = torch.tensor([merge.lane_end_m[2] + 10.0])  # past the end of the merge's ramp lane
+    assert third_lane(merge, torch.tensor([0]), far).tolist() == [NO_LANE]
+
+
+def test_a_third_lane_car_reaching_into_the_near_lane_joins_its_rules_only_under_safe(hand_world):
+    """watch_third_lane: the traced multi-lane cases. A car of lane 2 stands turned in at -0.476 rad, centre
+    at y 6.31 (its nose 1 m over the line into lane 1). Env 0: the ego in lane 0 (pair (0, 1): lane 2 is not
+    in its view), the car 6 m ahead: paper allows LaneChange, safe forbids it (R*2 = 0, the car's bumper gap
+    1 m). Env 1: the ego in the middle lane at 2.5 m/s, the car 1.5 m ahead (alongside): the primary model
+    (0, 1) allows Faster under paper; under safe R*1 = 0."""
+    road = make_road("multi-lane")
+    scenes = [{"ego": (0.0, 0.0, 5.0, 0.0), "svs": [(6.0, 6.31, 0.0, -0.476)]},
+              {"ego": (0.0, W, 2.5, 0.0), "svs": [(1.5, 6.31, 0.0, -0.476)]}]
+    cases = {**layers(road), "safe without it": SafetyLayer(road, watch_third_lane=False)}
+    for name, layer in cases.items():
+        p = layer.observe(hand_world(road, scenes)).primary
+        assert p.lanes.base_lane.tolist() == [0, 0], name
+        assert p.mask[0, LANE_CHANGE].item() is (name != "safe"), name
+        assert p.mask[1, FASTER].item() is (name != "safe"), name
+        assert p.mask[0, FASTER].item(), name  # the ego's own lane is free
+
+
+def test_the_front_room_is_computed_only_where_idle_stops_at_the_last_resort(hand_world):
+    road = make_road("two-lane")
+    scene = [{"ego": (0.0, 0.0, 5.0, 0.0), "svs": [(10.0, 0.0, 0.0, 0.0)]}]
+    for name, layer in layers(road).items():
+        assert (layer.observe(hand_world(road, scene)).primary.front_room_m is None) is (name == "paper"), name
+    raw = RawSafetyLayer(road, profile="paper")
+    assert raw.observe(hand_world(road, scene)).primary.front_room_m is None
 
 
 def test_idle_as_the_last_resort_brakes_to_stand_within_the_room_ahead_only_under_safe(hand_world):
