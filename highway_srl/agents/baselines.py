@@ -304,7 +304,7 @@ class LMRL(SingleDQN):
         both = torch.stack([members, members + 1], 1).flatten().to(learner.device)
         with torch.no_grad():
             x = paired(batch["next_obs"])
-            q_on = learner.member_q(both, x)  # (2K, N, 4)
+            q_on = learner.member_q(both, x, static=mask is not None)  # (2K, N, 4)
             lam = self.lam.to(q_on.device)[members.to(q_on.device) // self.members_per_seed]
             a_next = (q_on[0::2] - lam[:, None, None] * q_on[1::2]).argmax(-1)  # (K, N)
         targets = {"obs": paired(batch["obs"]), "action": paired(batch["action"]),

@@ -260,9 +260,10 @@ class DQNLearner:
         return UpdateStats(per_member, q_sa.mean(1), (y - q_sa).abs().mean(1))
 
     @torch.no_grad()
-    def member_q(self, members: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        """Online Q-values of members (K,) long at x (K, N, obs_dim): (K, N, out_dim), not masked."""
-        rows = members.tolist() if self.rows_in_place else None
+    def member_q(self, members: torch.Tensor, x: torch.Tensor, static: bool = False) -> torch.Tensor:
+        """Online Q-values of members (K,) long at x (K, N, obs_dim): (K, N, out_dim), not masked. static: the
+        rows gathered without reading members on the host (the static form: update_masked's callers)."""
+        rows = members.tolist() if self.rows_in_place and not static else None
         return self.online.forward_rows(self._rows_of(self.online, members.to(self.device), rows), x)
 
     @staticmethod
