@@ -83,6 +83,11 @@ def dual_update(lam: torch.Tensor, episode_cost: torch.Tensor, limit: float = CO
     return (lam + lr * (episode_cost - limit)).clamp(0.0, lam_max)
 
 
+def paired(t: torch.Tensor) -> torch.Tensor:
+    """(2K, ...): each row of t (K, ...) twice in a row; for K = 1 a view (no copy)."""
+    return t.unsqueeze(1).expand(t.shape[0], 2, *t.shape[1:]).flatten(0, 1)
+
+
 class _Options:
     """Methods that take no options reject them by name."""
 
@@ -294,19 +299,20 @@ class LMRL(SingleDQN):
         with the cost as the cost networks' reward.
         mask (K,) bool: only those reward networks and their cost networks step (the static form).
         Returns the reward networks' stats (the logs' Q values are returns, not costs)."""
-        k = members.shape[0]
-        both = torch.cat([members, members + 1]).to(learner.device)
+        # reward and cost network of each seed side by side (2s, 2s + 1, ...): consecutive rows, which the
+        # learner reads in place (DQNLearner.update), and each network's row of every input beside its twin's
+        both = torch.stack([members, members + 1], 1).flatten().to(learner.device)
         with torch.no_grad():
-            x = torch.cat([batch["next_obs"]] * 2)
-            q_on = learner.online.forward_rows(learner.online.gather(both), x)  # (2K, N, 4)
+            x = paired(batch["next_obs"])
+            q_on = learner.member_q(both, x, static=mask is not None)  # (2K, N, 4)
             lam = self.lam.to(q_on.device)[members.to(q_on.device) // self.members_per_seed]
-            a_next = (q_on[:k] - lam[:, None, None] * q_on[k:]).argmax(-1)  # (K, N)
-        targets = {"obs": torch.cat([batch["obs"]] * 2), "action": torch.cat([batch["action"]] * 2),
-                   "reward": torch.cat([batch["reward"], batch["cost"]]), "next_obs": x,
-                   "done": torch.cat([batch["done"]] * 2), "next_action": torch.cat([a_next, a_next])}
+            a_next = (q_on[0::2] - lam[:, None, None] * q_on[1::2]).argmax(-1)  # (K, N)
+        targets = {"obs": paired(batch["obs"]), "action": paired(batch["action"]),
+                   "reward": torch.stack([batch["reward"], batch["cost"]], 1).flatten(0, 1), "next_obs": x,
+                   "done": paired(batch["done"]), "next_action": paired(a_next)}
         if mask is None:
-            return learner.update(both, targets).head(k)
-        return learner.update_masked(both, targets, torch.cat([mask, mask])).head(k)
+            return learner.update(both, targets).rows(slice(0, None, 2))
+        return learner.update_masked(both, targets, paired(mask)).rows(slice(0, None, 2))
 
     def start(self, batch, device, static) -> None:
         if static:  # λ on the device and the episode costs from the start (the compact form: λ on the host)

@@ -90,7 +90,7 @@ def test_update_log_averages_over_member_updates_and_has_nothing_before_the_firs
     log = UpdateLog("cpu")
     assert log.read() == {}
     log.add(stats)
-    log.add(stats.head(1))
+    log.add(stats.rows(slice(0, 1)))
     assert log.read() == pytest.approx({"loss": 5.0 / 3, "q_mean": 40.0 / 3, "td_error": 2.5 / 3})
     assert log.read() == {}  # a read starts again
 
