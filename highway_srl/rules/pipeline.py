@@ -50,13 +50,8 @@ from highway_srl.rules.mappings import (
     target_speed,
 )
 from highway_srl.rules.observation import build_observation, ego_progress_feature
-from highway_srl.rules.reward_machine import (
-    D_ACC_M,
-    HighwayPropositions,
-    desired_speed,
-    highway_reward_machine,
-    speed_ratio,
-)
+from highway_srl.rules.reward_machine import (D_ACC_M, HighwayPropositions, desired_speed, highway_reward_machine,
+                                              speed_ratio)
 from highway_srl.rules.safe_actions import IDLE, LANE_CHANGE, SLOWER, safe_action_mask_from
 from highway_srl.rules.safe_distance import rule_indicator
 from highway_srl.rules.third_lane import third_lane, third_lane_cars, third_lane_room, with_third_lane
@@ -114,13 +109,12 @@ def control_profile(name: str) -> ControlProfile:
 
 @dataclass
 class ModelStep:
-    """One two-lane model's view of the step, all (B, ...): obs (B, 37) float32; mask (B, 4) bool in
-    ACTIONS order; rm_state (B,) long u*; r_rm (B,) RM reward; r_sv / r_star (B, 4) bool R_SVi (a third-lane
-    car joining a slot included, watch_third_lane) and R*_SVi;
-    m_l_ego (B,) bool; t_id (B,) long local T*_ID used for d_VL; v_star (B,) m/s; speed_ratio (B,) v/v*
-    (clipped, for the deployment reward); gaps_m (B, 4) bumper gaps; vehicles: SV1..SV4 with defaults;
-    lanes: the ID mapping of this model; front_room_m (B,) the distance the ego may cover before it must
-    stand (front_room), None where the layer does not stop at the last resort (nothing reads it)."""
+    """One two-lane model's view of the step, all (B, ...): obs (B, 37) float32; mask (B, 4) bool in ACTIONS
+    order; rm_state (B,) long u*; r_rm (B,) RM reward; r_sv / r_star (B, 4) bool R_SVi (a third-lane car joining
+    a slot included, watch_third_lane) and R*_SVi; m_l_ego (B,) bool; t_id (B,) long local T*_ID used for d_VL;
+    v_star (B,) m/s; speed_ratio (B,) v/v* (clipped, for the deployment reward); gaps_m (B, 4) bumper gaps;
+    vehicles: SV1..SV4 with defaults; lanes: the ID mapping of this model; front_room_m (B,) the distance the
+    ego may cover before it must stand (front_room), None where the layer does not stop at the last resort."""
 
     obs: torch.Tensor
     mask: torch.Tensor
