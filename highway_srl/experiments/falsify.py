@@ -31,6 +31,7 @@ from highway_srl.constants import DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, 
 from highway_srl.experiments.collisions import DecisionTrace
 from highway_srl.experiments.runs import check_output_folder, read_json, write_json
 from highway_srl.experiments.scenario_params import check_parameters, scenario_world
+from highway_srl.interrupts import held, quiet_worker
 from highway_srl.rules import ACTIONS, FASTER, IDLE, LANE_CHANGE, SLOWER, SafetyLayer, control_profile
 from highway_srl.scenarios import check_scenario
 from highway_srl.sim import World
@@ -315,8 +316,17 @@ def batch_runner(processes: int):
         ctx = multiprocessing.get_context("fork")
     except ValueError:
         raise ValueError("--processes needs the fork start method (Linux or macOS)") from None
-    with ctx.Pool(processes, initializer=torch.set_num_threads, initargs=(1,)) as pool:
+    with held():  # the workers start deaf to Ctrl-C and `kill` (interrupts.py), so that ending the pool is quiet
+        pool = ctx.Pool(processes, initializer=_quiet_worker_of_one_thread)
+    with pool:
         yield lambda fn, jobs: pool.imap(fn, jobs)
+
+
+def _quiet_worker_of_one_thread() -> None:
+    """A pool worker's start: the pool's SIGTERM at its end (and Ctrl-C, the command's to report) end it
+    without a word, where the handlers forked from the command would raise a traceback; one torch thread."""
+    quiet_worker()
+    torch.set_num_threads(1)
 
 
 def write_cases(folder: Path, cases: list[Case]) -> list[dict]:

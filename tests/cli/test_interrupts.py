@@ -176,3 +176,15 @@ def test_importing_the_library_leaves_the_signals_to_the_program():
     done = subprocess.run([sys.executable, "-c", code], env={**os.environ, "PYTHONPATH": str(ROOT)},
                           capture_output=True, text=True, timeout=240)
     assert done.stdout.split() == ["True", "True"], done.stderr
+
+
+def test_a_falsify_run_with_worker_processes_ends_without_a_word_from_them():
+    # the pool's end sends its workers SIGTERM; forked with the command's handlers, those still waiting for a
+    # batch printed tracebacks (in about two runs of three with these eight batches: so three runs)
+    argv = ["falsify", "--scenes", "two-lane", "--levels", "C,F", "--modes", "nominal", "--episodes", "16",
+            "--envs", "4", "--steps", "8", "--processes", "2"]
+    for _ in range(3):
+        done = subprocess.run([sys.executable, "-m", "highway_srl.cli", *argv], capture_output=True, text=True,
+                              env={**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}, timeout=240)
+        assert done.returncode == 0 and done.stderr == "", done.stderr
+        assert done.stdout.startswith("32 episodes (safe profile, uniform ego)"), done.stdout
