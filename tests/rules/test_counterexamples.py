@@ -18,8 +18,20 @@ from highway_srl.experiments import falsify as fz
 from highway_srl.rules.avoidable import SIDE_SWIPE, STOOD, ego_avoidable
 
 CASES = sorted((Path(__file__).parent / "cases").glob("*.json"))
-# counterexamples the safe profile does not close yet, with what is missing (none at present)
-OPEN: dict[str, str] = {}
+# counterexamples the safe profile does not close yet, with what is missing: the greedy-ttc search over
+# every scene and levels A-F (256 episodes a cell and mode), uniform and greedy-ttc, found these
+TURNING_IN = ("a car turning in ahead meets the ego's side; the verdict says the ego had room to brake: not yet "
+              "known whether the shield let the ego close in on a car about to turn in, or the verdict should "
+              "hold the turning car responsible (RSS's lateral rule)")
+OPEN = {
+    **dict.fromkeys([f"safe-greedy-turning-in-side-{where}.json" for where in
+                     ("two-lane-D-adversarial", "multi-lane-D", "merge-B", "exit-E")], TURNING_IN),
+    **dict.fromkeys(["safe-greedy-changed-into-a-closing-gap-multi-lane-B-adversarial.json",
+                     "safe-changed-into-a-closing-gap-multi-lane-A-adversarial.json",
+                     "safe-changed-into-a-closing-gap-exit-B-adversarial.json"],
+                    "adversarial traffic at light levels: the ego changed lanes into a gap a car was closing and "
+                    "met its side (the uniform ego finds it in multi-lane at A-D)"),
+}
 # safe-profile cases whose collision is not the ego's to avoid (rules.avoidable), with the verdict's reason:
 # the ego stood through the trace with no allowed move; the ego stood centred with a target lane it had not
 # moved toward while a car from the far lane behind it turned in (RSS: a car at standstill is not responsible)
