@@ -5,7 +5,7 @@ the last second before each one and what was executed (highway_srl.experiments.c
 
 The episodes are evaluate's own (the same world seeds, greedy, the run's profile). The census
 (scripts/collision_census.py) says what was hit; this puts each collision in the first class that its last
-`--window` decisions (default 8, one second) match: an action the safe mask forbade (methods without the
+8 decisions (one second) match: an action the safe mask forbade (methods without the
 gate); a lane change allowed and executed while R*1 = 0 (Table 1 allows it on R*2 and R*4 alone; the paper's
 control mapping holds the speed through it); Faster or Idle allowed at a bumper gap under 0.5 m; other.
 
@@ -26,7 +26,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from highway_srl.constants import TRAFFIC_LEVELS  # noqa: E402
-from highway_srl.experiments.collisions import DecisionTrace, show_decisions  # noqa: E402
+from highway_srl.experiments.collisions import VERDICT_WINDOW, DecisionTrace, show_decisions  # noqa: E402
 from highway_srl.experiments.evaluate import evaluation_seeds, run_episodes  # noqa: E402
 from highway_srl.experiments.policy import load_policy  # noqa: E402
 from highway_srl.rules import ControlProfile  # noqa: E402
@@ -82,7 +82,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("run", help="a trained run folder")
     p.add_argument("--traffic", default="C", help="comma-separated levels (default C)")
     p.add_argument("--episodes", type=int, default=100, help="per seed and level (default 100, as evaluate)")
-    p.add_argument("--window", type=int, default=8, help="decisions before each collision looked at (default 8)")
+    p.add_argument("--window", type=int, default=VERDICT_WINDOW,
+                   help=f"decisions kept before each collision (default {VERDICT_WINDOW}: the ego-avoidable verdict "
+                        "reads them all, the class the last 8)")
     p.add_argument("--show", type=int, default=0, help="print the last decisions of this many collisions per level")
     p.add_argument("--set", action="append", default=[], metavar="OPTION=VALUE",
                    help="a safe-profile addition over the run's profile, e.g. brake_while_changing=true")

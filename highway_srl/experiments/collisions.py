@@ -106,6 +106,10 @@ FORBIDDEN, LANE_CHANGE_CYCLE, CREEP, OTHER = (
     "Faster or Idle allowed, gap < 0.5 m", "other")
 DECISION_CLASSES = (FORBIDDEN, LANE_CHANGE_CYCLE, CREEP, OTHER)  # in the order classify tries them
 CREEP_GAP_M = 0.5  # below this bumper gap the printed safe distance is about zero near standstill
+CLASS_WINDOW = 8  # decisions (1 s) the decision class reads
+# decisions (3 s) the ego-avoidable verdict reads: where the hit car entered the ego's path and whether the
+# ego moved sideways toward it; 1 s missed an adversarial cut-in begun alongside 1.1 s before the contact
+VERDICT_WINDOW = 24
 
 
 class DecisionTrace:
@@ -114,7 +118,7 @@ class DecisionTrace:
 
     Why: the census says what was hit; a shielded method's collision also has a decision the shield let
     through, and which one says where the gap is (Table 1, the control mapping, the safe distance). Each
-    collision gets the first of DECISION_CLASSES that the env's last `window` decisions match: an action the
+    collision gets the first of DECISION_CLASSES that the env's last CLASS_WINDOW decisions match: an action the
     method's own safe mask forbade (a method without the gate: what it ran into is its policy's, not the
     shield's); a lane change (LaneChange; LaneLeft / LaneRight of A) allowed and executed while R*1 = 0
     (Table 1 allows it on R*2 ∧ R*4 alone and the paper's control mapping holds the speed through it);
@@ -131,7 +135,7 @@ class DecisionTrace:
     keep_state each step (device clones only), judge_ended where episodes end, before the reset (the records
     of that step's collisions, judged, handed over and not kept), and episodes_restart after it."""
 
-    def __init__(self, method, window: int = 8) -> None:
+    def __init__(self, method, window: int = VERDICT_WINDOW) -> None:
         if window < 1:
             raise ValueError(f"window must be positive, got {window}")
         self.method, self.step, self.records = method, 0, []
@@ -164,7 +168,7 @@ class DecisionTrace:
                      **{k: float(r[k][env]) for k in ("gap1", "v", "v1", "x", "y")},
                      "r1": bool(r["r1"][env]), "lane": int(r["lane"][env]), "m": bool(r["m"][env])}
                     for r in self._recent if r["step"] >= first]
-            self.records.append({"env": env, "step": self.step - 1, "class": classify_decisions(rows),
+            self.records.append({"env": env, "step": self.step - 1, "class": classify_decisions(rows[-CLASS_WINDOW:]),
                                  "decisions": rows})
 
     def after_step(self, world, events, alive) -> None:

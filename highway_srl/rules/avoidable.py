@@ -13,9 +13,11 @@ its kind (front, rear, side, road), who was changing lanes, and per decision the
 actions and the longitudinal and lateral offsets and speeds of the vehicle that was hit. Cases, in order:
   1. an action the rule layer forbade was executed: avoidable (any allowed action was a choice);
   2. road (a lane end, a barrier, the road's edge): avoidable (the ego's own path);
-  3. the ego was changing lanes: avoidable (it changed into an occupied or closing gap); not an ego that
-     stood on its lane's centre through the whole trace with a target lane it had not begun to move to
-     (a standing car does not move sideways): it is judged by the cases below;
+  3. the ego was changing lanes and moved sideways toward the car it hit by LATERAL_MOVE_M or more within
+     the trace: avoidable (it changed into an occupied or closing gap). An ego whose change stood still or
+     went away from that car (a change stalled half-way, a target lane it had not begun to move to, an
+     abort) has kept its lateral position: it is judged by the cases below, as RSS's lateral rule judges
+     the car that moved sideways into the other;
   4. front: unavoidable only if the car it hit came into its path within the trace (seen out of it first,
      or out of it at the last decision) at a bumper gap the ego could not stop in, braking at its limit
      at once while that car braked at its own (room_to_stop); avoidable otherwise, also when the car was
@@ -66,7 +68,11 @@ NEEDLESS_BRAKE = "braked without need in front of a close follower"
 REAR = "hit from behind by a car that did not brake for the ego"
 AVOIDABLE_REASONS = (FORBIDDEN_ACTION, ROAD, EGO_CHANGED, RAN_INTO, SIDE_ROOM, SIDE_KEEPING, NEEDLESS_BRAKE)
 UNAVOIDABLE_REASONS = (STOOD, CUT_IN, SIDE_SWIPE, REAR)
-OFF_CENTRE_M = 0.5  # a centre this far off its lane's centre is taken as changing lanes
+# RSS's lateral rule blames the car that moved sideways toward the other beyond a small fluctuation (its μ):
+# the ego counts as changing into the car it hit only if it came this much closer to it sideways within the
+# trace (3 s); a standing car creeping at 0.44 m/s with a 0.15 rad heading drifts 0.05 m in that time.
+LATERAL_MOVE_M = 0.2
+OFF_CENTRE_M = 0.5  # the census (experiments.collisions) takes a centre this far off its lane's centre as changing
 
 
 def rss_safe_distance(v_rear: Num, v_front: Num, *, response_s: Num = DT_S, accel_max: Num = EGO_ACCEL_MAX_MPS2,
@@ -120,7 +126,7 @@ def ego_avoidable(kind: str, ego_changing: bool, sv_changing: bool, rows: list[d
 
     kind: front, rear, side or road (experiments.collisions.classify); ego_changing / sv_changing: who was
     changing lanes at contact; rows: the decisions before it, oldest first, each with action and allowed
-    (action names), r1 (R*1), v (the ego's speed) and, for the car that was hit, dx (its centre ahead of
+    (action names), r1 (R*1), v (the ego's speed), y (its lateral position, m) and, for the car that was hit, dx (its centre ahead of
     the ego's, m; negative behind), dy (sideways, m) and v_sv (m/s), or None where it was not recorded."""
     if kind not in ("front", "rear", "side", "road"):
         raise ValueError(f"unknown collision kind {kind!r}; choose front, rear, side or road")
@@ -128,7 +134,7 @@ def ego_avoidable(kind: str, ego_changing: bool, sv_changing: bool, rows: list[d
         return True, FORBIDDEN_ACTION
     if kind == "road":
         return True, ROAD
-    if ego_changing and not (stood(rows) and _on_lane_centre(rows[-1])):
+    if ego_changing and moved_toward(rows):
         return True, EGO_CHANGED
     if kind == "rear":
         return (True, NEEDLESS_BRAKE) if any(_needless_brake(r) for r in rows) else (False, REAR)
@@ -162,11 +168,15 @@ def stood(rows: list[dict]) -> bool:
     return bool(rows) and all(r["v"] == 0.0 and r["action"] != "Faster" for r in rows)
 
 
-def _on_lane_centre(row: dict) -> bool:
-    """The ego's centre within OFF_CENTRE_M of its lane's centre (lane k's centre at k w_L) at this decision."""
-    if row.get("y") is None or row.get("lane") is None:
-        return False
-    return abs(row["y"] - row["lane"] * LANE_WIDTH_M) <= OFF_CENTRE_M
+def moved_toward(rows: list[dict]) -> bool:
+    """Case 3: the ego came LATERAL_MOVE_M or more closer sideways to the car it hit between the first and
+    the last decision of the trace (the side that car is on at the last one); True where the trace does not
+    keep the ego's or that car's lateral position (doubt falls on the avoidable side)."""
+    first, last = rows[0], rows[-1]
+    if first.get("y") is None or last.get("y") is None or last.get("dy") is None:
+        return True
+    side = 1.0 if last["dy"] > 0 else -1.0
+    return (last["y"] - first["y"]) * side >= LATERAL_MOVE_M
 
 
 def _needless_brake(row: dict) -> bool:

@@ -116,7 +116,8 @@ def test_repeated_lane_change_behind_a_slower_leader_is_the_paper_mappings_gap_a
     and it runs into the leader. brake_while_changing (safe profile) brakes through the same decisions."""
     from types import SimpleNamespace
 
-    from highway_srl.experiments.collisions import DECISION_CLASSES, LANE_CHANGE_CYCLE, DecisionTrace, show_decisions
+    from highway_srl.experiments.collisions import (
+        CLASS_WINDOW, DECISION_CLASSES, LANE_CHANGE_CYCLE, VERDICT_WINDOW, DecisionTrace, show_decisions)
     from highway_srl.rules import SafetyLayer
     from highway_srl.rules.safe_actions import LANE_CHANGE
 
@@ -141,9 +142,10 @@ def test_repeated_lane_change_behind_a_slower_leader_is_the_paper_mappings_gap_a
             assert hit is not None and hit < 40 and float(world.state.v[0, 0]) == pytest.approx(10.0, abs=1e-3)
             [record] = trace.records
             assert (record["env"], record["step"], record["class"]) == (0, hit, LANE_CHANGE_CYCLE)
-            assert [r["step"] for r in record["decisions"]] == list(range(hit - 7, hit + 1))  # the last 8
+            # the last VERDICT_WINDOW decisions of the episode
+            assert [r["step"] for r in record["decisions"]] == list(range(max(0, hit - VERDICT_WINDOW + 1), hit + 1))
             assert all(r["action"] == "LaneChange" and "LaneChange" in r["allowed"] and not r["r1"]
-                       for r in record["decisions"])
+                       for r in record["decisions"][-CLASS_WINDOW:])  # the decisions the class reads
             assert trace.counts() == {**dict.fromkeys(DECISION_CLASSES, 0), LANE_CHANGE_CYCLE: 1}
             assert show_decisions(record).splitlines()[-1].endswith("executed LaneChange")
 

@@ -63,7 +63,9 @@ def test_the_ego_accelerating_into_a_stopped_car_is_avoidable():
     # without the rule layer (every action allowed) the physics alone says the same: it had room to stop
     unshielded = [{**r, "allowed": list(ACTIONS)} for r in record["decisions"]]
     assert ego_avoidable("front", False, False, unshielded) == (True, RAN_INTO)
-    first = unshielded[0]  # a second before the contact the gap still exceeded its braking distance
+    # the first decision the trace kept the car's offsets for (the reset state before the first step is not
+    # kept): the gap still exceeded the ego's braking distance there
+    first = next(r for r in unshielded if r["dx"] is not None)
     assert first["v_sv"] < 0.5 and first["dx"] - VEHICLE_LENGTH_M > stopping_distance_steps(first["v"]) > 8.0
 
 

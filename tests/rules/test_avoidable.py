@@ -98,17 +98,27 @@ def test_a_standing_ego_with_no_allowed_move_is_not_responsible():
     assert ego_avoidable("rear", False, False, [row(-6.0, v=0.0, v_sv=5.0, action="Slower", allowed=["Slower"], r1=False)]) == (False, REAR)
 
 
-def test_a_lane_change_target_the_standing_ego_has_not_moved_toward_is_not_changing_lanes():
-    """The traced merge C case: the ego stands centred in lane 1 (y 3.59) with LaneChange's target lane 2,
-    so the census counts it as changing lanes; a car from lane 0 behind turns in and meets its side. It has
-    not moved sideways, so the side case judges it (the car came in from out of the path, from behind:
-    no room, unavoidable). Off its lane's centre, or moving at one decision, it is changing lanes."""
+def test_an_ego_changing_lanes_counts_as_changing_into_the_car_only_if_it_moved_sideways_toward_it():
+    """RSS's lateral rule blames the car that moved sideways toward the other. The traced merge C case: the
+    ego stands centred in lane 1 (y 3.59) with LaneChange's target lane 2, so the census counts it as
+    changing lanes; a car from lane 0 behind turns in and meets its side. It has not moved toward that car,
+    so the side case judges it (the car came in from out of the path, from behind: no room, unavoidable).
+    The same for a change stalled half-way (y 2.09, the traced multi-lane A case) and for an ego moving
+    away; 0.2 m (LATERAL_MOVE_M) or more toward the car within the trace is changing into it."""
     standing = [{**row(-6.3 + 0.6 * k, dy=-3.5 + 0.3 * k, v=0.0, v_sv=6.0, action="LaneChange",
                        allowed=["Faster", "Idle", "LaneChange"]), "y": 3.59, "lane": 1} for k in range(8)]
     assert ego_avoidable("side", True, True, standing) == (False, SIDE_SWIPE)
-    assert ego_avoidable("side", True, True, [*standing[:-1], {**standing[-1], "y": 4.2}]) == (True, EGO_CHANGED)
-    assert ego_avoidable("side", True, True, [{**standing[0], "v": 1.0}, *standing[1:]]) == (True, EGO_CHANGED)
+    stalled = [{**s, "y": 2.09} for s in standing]
+    assert ego_avoidable("side", True, True, stalled) == (False, SIDE_SWIPE)
+    creeping = [{**s, "v": 0.44} for s in standing]  # moving on along its lane is not moving sideways
+    assert ego_avoidable("side", True, True, creeping) == (False, SIDE_SWIPE)
+    # the car is below it (dy < 0): toward is down
+    assert ego_avoidable("side", True, True, [*standing[:-1], {**standing[-1], "y": 3.59 - 0.2}]) == (True, EGO_CHANGED)
+    assert ego_avoidable("side", True, True, [*standing[:-1], {**standing[-1], "y": 3.59 - 0.19}]) == (False, SIDE_SWIPE)
+    assert ego_avoidable("side", True, True, [*standing[:-1], {**standing[-1], "y": 4.2}]) == (False, SIDE_SWIPE)
     assert ego_avoidable("side", True, True, [{**s, "y": None} for s in standing]) == (True, EGO_CHANGED)
+    # a stalled ego met by a car keeping its lane: the side case with neither changing, doubt on the ego
+    assert ego_avoidable("side", True, False, stalled) == (True, SIDE_KEEPING)
 
 
 def test_the_other_cases():

@@ -20,25 +20,23 @@ from highway_srl.rules.avoidable import SIDE_SWIPE, STOOD, ego_avoidable
 CASES = sorted((Path(__file__).parent / "cases").glob("*.json"))
 # counterexamples the safe profile does not close yet, with what is missing: the greedy-ttc search over
 # every scene and levels A-F (256 episodes a cell and mode), uniform and greedy-ttc, found these
-TURNING_IN = ("a car turning in ahead meets the ego's side; the verdict says the ego had room to brake: not yet "
-              "known whether the shield let the ego close in on a car about to turn in, or the verdict should "
-              "hold the turning car responsible (RSS's lateral rule)")
-OPEN = {
-    **dict.fromkeys([f"safe-greedy-turning-in-side-{where}.json" for where in
-                     ("two-lane-D-adversarial", "multi-lane-D", "merge-B", "exit-E")], TURNING_IN),
-    **dict.fromkeys(["safe-greedy-changed-into-a-closing-gap-multi-lane-B-adversarial.json",
-                     "safe-changed-into-a-closing-gap-multi-lane-A-adversarial.json",
-                     "safe-changed-into-a-closing-gap-exit-B-adversarial.json"],
-                    "adversarial traffic at light levels: the ego changed lanes into a gap a car was closing and "
-                    "met its side (the uniform ego finds it in multi-lane at A-D)"),
-}
+TURNING_IN = ("a car standing mid-change, its tail reaching into the ego's lane, behind the nearest car of its own "
+              "lane: neither the pair's SV1..SV4 nor the third-lane watch holds it")
+OPEN = dict.fromkeys([f"safe-greedy-turning-in-side-{where}.json" for where in ("multi-lane-D", "merge-B", "exit-E")],
+                     TURNING_IN)
 # safe-profile cases whose collision is not the ego's to avoid (rules.avoidable), with the verdict's reason:
 # the ego stood through the trace with no allowed move; the ego stood centred with a target lane it had not
-# moved toward while a car from the far lane behind it turned in (RSS: a car at standstill is not responsible)
-# (who was changing lanes at contact, ego and SV, as the trace classified it: the records do not keep it)
+# moved toward while a car from the far lane behind it turned in (RSS: a car at standstill is not responsible);
+# adversarial cut-ins into an ego whose own change had stalled (it had not moved sideways toward the car for
+# 3 s) or from alongside (the car entered the path 1.1 s before contact, level with the ego)
+# (who was changing lanes at contact, ego and SV, as the trace classified it)
 UNAVOIDABLE = {
     "safe-standing-ego-side-cut-in-multi-lane-F-adversarial.json": (False, True, STOOD),
     "safe-greedy-standing-change-hit-from-the-side-merge-C-adversarial.json": (True, True, SIDE_SWIPE),
+    "safe-greedy-cut-in-from-alongside-two-lane-D-adversarial.json": (False, True, SIDE_SWIPE),
+    **dict.fromkeys(["safe-cut-in-behind-a-stalled-change-exit-B-adversarial.json",
+                     "safe-cut-in-beside-a-stalled-change-multi-lane-A-adversarial.json",
+                     "safe-greedy-cut-in-beside-a-stalled-change-multi-lane-B-adversarial.json"], (True, True, SIDE_SWIPE)),
 }
 # the safe-profile addition whose absence reproduces a case found under the safe profile
 CLOSED_BY = {
@@ -91,7 +89,7 @@ def test_a_safe_profile_hole_comes_back_without_its_addition(name):
 
 
 @pytest.mark.parametrize("name", sorted(UNAVOIDABLE))
-def test_a_standing_ego_hit_from_the_side_is_judged_unavoidable(name):
+def test_a_collision_the_ego_could_not_answer_is_judged_unavoidable(name):
     """The verdict on the collision as the falsifier traced it (the case's record; under today's safe profile
     the replay may take another path)."""
     rec = fz.load_case(Path(__file__).parent / "cases" / name).record
