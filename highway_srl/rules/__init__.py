@@ -34,16 +34,8 @@ from highway_srl.rules.metrics import (
     wilson_interval,
 )
 from highway_srl.rules.observation import OBS_NAMES, build_observation, observation_ranges
-from highway_srl.rules.pipeline import (
-    PROFILES,
-    ControlProfile,
-    ModelStep,
-    SafetyLayer,
-    SafetyStep,
-    choose_second,
-    control_profile,
-    may_use_second,
-)
+from highway_srl.rules.pipeline import ModelStep, SafetyLayer, SafetyStep, choose_second, may_use_second
+from highway_srl.rules.profiles import PROFILES, ControlProfile, control_profile
 from highway_srl.rules.reward_machine import (
     COLLISION_REWARD,
     D_ACC_M,

@@ -33,7 +33,8 @@ import torch
 from highway_srl.constants import D_ML_M, DEFAULT_PROFILE, DT_S, EGO_BRAKE_MAX_MPS2, SV_BRAKE_MAX_MPS2, VEHICLE_LENGTH_M
 from highway_srl.rules.mappings import NO_LANE, LaneModel, crossing_allowed, fill_defaults, lane_exists, target_speed
 from highway_srl.rules.observation import OBS_NAMES, build_observation, ego_progress_feature
-from highway_srl.rules.pipeline import FRONT_SLOTS, ModelStep, SafetyLayer, SafetyStep, where_tree, control_profile
+from highway_srl.rules.pipeline import FRONT_SLOTS, ModelStep, SafetyLayer, SafetyStep, where_tree
+from highway_srl.rules.profiles import control_profile
 from highway_srl.rules.reward_machine import D_ACC_M, desired_speed, reward_machine_state, rm_reward
 from highway_srl.rules.safe_actions import IDLE, LANE_CHANGE, safe_action_mask_from
 from highway_srl.rules.safe_distance import rule_indicator

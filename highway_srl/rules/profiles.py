@@ -1,0 +1,54 @@
+"""The control profiles: which of the project's safety additions to the rule and control mappings (Eqs. 31-35)
+are on. `paper` is Eqs. 31-35 as printed; `safe` adds each of ours, every one justified by a measured crash
+(docs/paper-notes.md, "Profiles: paper vs safe"). rules.pipeline.SafetyLayer reads them."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+STANDSTILL_GAP_M = 1.0  # margin subtracted from every bumper gap before the SD rule (docs/paper-notes.md)
+
+
+@dataclass(frozen=True)
+class ControlProfile:
+    """Which of our safety additions to the rule and control mappings (Eqs. 31-35) are on.
+
+    abort_unsafe_change: a held lane change is given up (T* = C_ID) when R*2 ∧ R*4 fail; brake_while_changing:
+    LaneChange behind an unsafe SV1 (R*1 = 0) brakes as Slower; finish_in_window: a change is started or held
+    only if it ends before the road's change window closes; straddle_grouping: an ego near the boundary
+    occupies both lanes (R*1 ∧ R*2, R*3 ∧ R*4); standstill_gap_m: margin taken off every bumper gap before
+    the SD rule; turning_in_is_near: an SV whose body crosses the lane line while it heads toward the ego's
+    side is near it in Eq. 31 (mappings.crossing_toward); last_resort_stops: Idle as Table 1's last resort
+    (R*1 = 0, so Idle is the only safe action) brakes just hard enough to stop within the room ahead
+    (mappings.stopping_speed) instead of keeping the speed; reaching_over_is_near: an SV whose centre is
+    beyond the line while its body crosses it is near it (mappings.reaching_over); watch_third_lane: cars of
+    the lane the model does not hold join the rules of the lane they reach into (rules.third_lane);
+    ego_body_straddles: the straddle grouping also holds while the ego's body crosses the line. docs/
+    paper-notes.md, "Profiles: paper vs safe", gives each with the crash that motivated it.
+    """
+
+    abort_unsafe_change: bool
+    brake_while_changing: bool
+    finish_in_window: bool
+    straddle_grouping: bool
+    standstill_gap_m: float
+    turning_in_is_near: bool
+    last_resort_stops: bool
+    reaching_over_is_near: bool
+    watch_third_lane: bool
+    ego_body_straddles: bool
+
+
+# paper: Eqs. 31-35 as printed plus only the readings they cannot work without (holding a change under way);
+# safe: the project's additions on top, each justified by a measured crash.
+PROFILES: dict[str, ControlProfile] = {
+    "paper": ControlProfile(False, False, False, False, 0.0, False, False, False, False, False),
+    "safe": ControlProfile(True, True, True, True, STANDSTILL_GAP_M, True, True, True, True, True),
+}
+
+
+def control_profile(name: str) -> ControlProfile:
+    """The profile called name ("paper" or "safe"); ValueError naming the choices otherwise."""
+    if name not in PROFILES:
+        raise ValueError(f"unknown profile {name!r}; choose one of {', '.join(PROFILES)}")
+    return PROFILES[name]
