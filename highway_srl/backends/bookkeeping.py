@@ -246,7 +246,7 @@ class EpisodeCore:
         return StageFlags(ws.merged.clone(), ws.exit1.clone(), ws.exit2.clone())
 
     # ------------------------------------------------------------------ the snapshot
-    def snapshot(self, frame: Frame, current_lane, adjacent_lane, d_max: float = D_MAX_M) -> Snapshot:
+    def snapshot(self, frame: Frame, current_lane, adjacent_lane, d_max: float = D_MAX_M, by_body: bool = False) -> Snapshot:
         """World.neighbours' function run on this frame: the same slots, lane membership, lane-end obstacles;
         SVs the simulator does not show right now are out of sight."""
         x = np.where(frame.present, frame.x, FAR_M)
@@ -254,7 +254,7 @@ class EpisodeCore:
         ws = replace(self.sync(frame), x=torch.from_numpy(np.asarray(x, np.float32))[None])
         cur = torch.as_tensor(current_lane).long().reshape(1)
         adj = torch.as_tensor(adjacent_lane).long().reshape(1)
-        return ego_neighbours(ws, self.road, self.tables, cur, adj, d_max)
+        return ego_neighbours(ws, self.road, self.tables, cur, adj, d_max, by_body)
 
 
 class FrameQueries:
@@ -292,6 +292,7 @@ class FrameQueries:
     def stage_flags(self) -> StageFlags:
         return self._core.stage_flags()
 
-    def neighbours(self, current_lane: torch.Tensor, adjacent_lane: torch.Tensor, d_max: float = D_MAX_M) -> Snapshot:
-        """SV1..SV4 of the ego with World.neighbours' semantics (vehicle centres, lane by nearest centre)."""
-        return self._core.snapshot(self._frame, current_lane, adjacent_lane, d_max)
+    def neighbours(self, current_lane: torch.Tensor, adjacent_lane: torch.Tensor, d_max: float = D_MAX_M,
+                   by_body: bool = False) -> Snapshot:
+        """SV1..SV4 of the ego with World.neighbours' semantics (vehicle centres; lanes by centre or by_body)."""
+        return self._core.snapshot(self._frame, current_lane, adjacent_lane, d_max, by_body)

@@ -344,10 +344,11 @@ class SumoBackend(SingleEnvBackend):
         return ego, others
 
     # ------------------------------------------------------------------ queries
-    def neighbours(self, current_lane: torch.Tensor, adjacent_lane: torch.Tensor, d_max: float = D_MAX_M) -> Snapshot:
-        """SV1..SV4 of the ego with World.neighbours' semantics (vehicle centres, lane by nearest centre)."""
+    def neighbours(self, current_lane: torch.Tensor, adjacent_lane: torch.Tensor, d_max: float = D_MAX_M,
+                   by_body: bool = False) -> Snapshot:
+        """SV1..SV4 of the ego with World.neighbours' semantics (vehicle centres; lanes by centre or by_body)."""
         self._check_open()
-        return self._core.snapshot(self._frame, current_lane, adjacent_lane, d_max)
+        return self._core.snapshot(self._frame, current_lane, adjacent_lane, d_max, by_body)
 
     @property
     def sumo(self):

@@ -6,7 +6,8 @@
     use_second = ...                             # multi-lane only: where step.two_models and model B's Q wins
     lane, speed = layer.act(action, use_second)  # -> world.step(lane, speed)
 
-`world` needs `road` and `neighbours(current_lane (B,), adjacent_lane (B,)) -> Snapshot`. observe() does:
+`world` needs `road` and `neighbours(current_lane (B,), adjacent_lane (B,), by_body=False) -> Snapshot`
+(by_body: the safe profile's lanes_by_body asks a second time). observe() does:
 ID mapping -> snapshot -> default virtual vehicles -> R_SVi (Eq. 26) -> m*_L (Eq. 31) -> R*_SVi (Eq. 32)
 -> safe-action mask (Table 1) -> d_VL with the carried T*_ID -> RM state u* (Eqs. U1-U4) -> v* -> r_RM
 -> the 37 inputs. act() is the action and control mapping (Eqs. 34-35, Δv_A, Δv_D). Between the two calls
@@ -49,6 +50,7 @@ from highway_srl.rules.mappings import (
     target_lane_local,
     target_speed,
 )
+from highway_srl.rules.lanes_by_body import body_room, body_slots, with_bodies
 from highway_srl.rules.observation import build_observation, ego_progress_feature
 from highway_srl.rules.profiles import control_profile
 from highway_srl.rules.reward_machine import (D_ACC_M, HighwayPropositions, desired_speed, highway_reward_machine,
@@ -168,6 +170,7 @@ class SafetyLayer:
         reaching_over_is_near: bool | None = None,
         watch_third_lane: bool | None = None,
         ego_body_straddles: bool | None = None,
+        lanes_by_body: bool | None = None,
         reaction_s: float = DT_S,
         ego_brake_mps2: float = EGO_BRAKE_MAX_MPS2,
         sv_brake_mps2: float = SV_BRAKE_MAX_MPS2,
@@ -191,6 +194,7 @@ class SafetyLayer:
         self.reaching_over_is_near = pick(reaching_over_is_near, prof.reaching_over_is_near)
         self.watch_third_lane = pick(watch_third_lane, prof.watch_third_lane)
         self.ego_body_straddles = pick(ego_body_straddles, prof.ego_body_straddles)
+        self.lanes_by_body = pick(lanes_by_body, prof.lanes_by_body)
         self.reaction_s, self.ego_brake, self.sv_brake = reaction_s, ego_brake_mps2, sv_brake_mps2
         self.rm = highway_reward_machine()
         self.target_lane: torch.Tensor | None = None  # (B,) long global T*; -1: not yet known
@@ -227,12 +231,14 @@ class SafetyLayer:
         self.target_lane = target
         ids: IdMapping = id_mapping(road, probe.ego_x, ego_lane, target)
         snap = self._snapshot(world, probe, ids.primary, self.static)
-        primary = self._model_step(snap, ids.primary, target, self._third_lane(world, ids.primary, probe.ego_x))
+        primary = self._model_step(snap, ids.primary, target, self._third_lane(world, ids.primary, probe.ego_x),
+                                   self._by_body(world, ids.primary))
         # where two_models is False, second repeats primary; the static form computes it wherever the road has
         # a middle lane (a fact of the road, no host read), which only multi-lane has
         if (self.static and road.mainline_lanes >= 3) or (not self.static and bool(ids.two_models.any())):
             snap_b = world.neighbours(ids.second.current_lane, ids.second.adjacent_lane)
-            second = self._model_step(snap_b, ids.second, target, self._third_lane(world, ids.second, probe.ego_x))
+            second = self._model_step(snap_b, ids.second, target, self._third_lane(world, ids.second, probe.ego_x),
+                                      self._by_body(world, ids.second))
         else:
             second = primary
         self._query = (ids.primary.current_lane, ids.primary.adjacent_lane)
@@ -271,6 +277,10 @@ class SafetyLayer:
         lane = third_lane(self.road, lanes.base_lane, ego_x)
         return world.neighbours(lane, torch.full_like(lane, NO_LANE))
 
+    def _by_body(self, world, lanes: LaneModel) -> Snapshot | None:
+        """The pair's lanes asked by body (lanes_by_body); None where the layer does not."""
+        return world.neighbours(lanes.current_lane, lanes.adjacent_lane, by_body=True) if self.lanes_by_body else None
+
     def _rule(self, gaps: torch.Tensor, ego_vx: torch.Tensor, sv_vx: torch.Tensor, front: torch.Tensor) -> torch.Tensor:
         """R_SV (Eq. 26) of bumper gaps (B, K) less the standstill margin: the SD rule treats cars as points;
         the margin covers rotated boxes (0.1 m at 0.1 rad for a 2 m wide car) and the controller's steps."""
@@ -288,7 +298,7 @@ class SafetyLayer:
         return m_l_sv & ~veh.virtual
 
     def _model_step(self, snap: Snapshot, lanes: LaneModel, target_global: torch.Tensor,
-                    third: Snapshot | None = None) -> ModelStep:
+                    third: Snapshot | None = None, bodies: Snapshot | None = None) -> ModelStep:
         w = self.road.lane_width_m if hasattr(self.road, "lane_width_m") else LANE_WIDTH_M
         veh = fill_defaults(snap, lanes.c_id, lanes.default_adjacent)
         ego_x, ego_vx = snap.ego_x, snap.ego_vx
@@ -299,6 +309,9 @@ class SafetyLayer:
         cars = None if third is None else third_lane_cars(third, lanes, w)
         if cars is not None:  # the third lane's cars reaching into the near lane join its rules
             r_sv = with_third_lane(r_sv, cars, self._rule(cars.gaps_m, ego_vx, cars.vx, front[[0, 2]]))
+        slots = None if bodies is None else body_slots(bodies, lanes.default_adjacent, front)
+        if slots is not None:  # the cars whose bodies reach into the pair's lanes join their slots
+            r_sv = with_bodies(r_sv, slots, self._rule(slots.gaps_m, ego_vx, slots.vx, front))
         base_y = lanes.base_lane.to(ego_x.dtype) * w
         ego_y_local = snap.ego_y - base_y
         sv_y_local = veh.y - base_y[:, None]
@@ -308,7 +321,7 @@ class SafetyLayer:
         straddles = m_l_ego | crosses_line(ego_y_local, snap.ego_heading, w) if self.ego_body_straddles else m_l_ego
         if self.straddle_grouping:
             r_star = straddle_grouping(r_star, straddles)
-        room = self._front_room(gaps, veh, m_l_sv, straddles, cars) if self.last_resort_stops else None
+        room = self._front_room(gaps, veh, m_l_sv, straddles, cars, slots) if self.last_resort_stops else None
         mask = safe_action_mask_from(r_star)
         t_id = (target_global - lanes.base_lane).clamp(0, 1)
         d_vl = (ego_y_local - t_id.to(ego_x.dtype) * w).abs()
@@ -339,12 +352,16 @@ class SafetyLayer:
                          gaps, veh, lanes, room)
 
     def _front_room(self, gaps: torch.Tensor, veh: Vehicles, m_l_sv: torch.Tensor, m_l_ego: torch.Tensor,
-                    cars) -> torch.Tensor:
-        """front_room: SV2 where Eq. 32 or the straddle grouping joins it to R*1, a third-lane car in its slot."""
+                    cars, slots) -> torch.Tensor:
+        """front_room: SV2 where Eq. 32 or the straddle grouping joins it to R*1; a third-lane car or a car by
+        body in a slot."""
         sv2_joins = (m_l_sv[:, 0] | m_l_sv[:, 1]) if self.grouped else m_l_sv[:, 0]
         if self.straddle_grouping:
             sv2_joins = sv2_joins | m_l_ego
         extra = None if cars is None else third_lane_room(cars, self.standstill_gap_m, self.sv_brake)
+        if slots is not None:
+            room = body_room(slots, self.standstill_gap_m, self.sv_brake)
+            extra = room if extra is None else torch.minimum(extra, room)
         return front_room(gaps, veh.vx, sv2_joins, self.standstill_gap_m, self.sv_brake, extra)
 
     # ------------------------------------------------------------------ act

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import torch
 
 from highway_srl.constants import D_MAX_M, VEHICLE_LENGTH_M
+from highway_srl.sim.box_geometry import lateral_half_extent
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.road import Road
 from highway_srl.sim.state import WorldState
@@ -52,12 +53,13 @@ class Snapshot:
 
 
 def ego_neighbours(s: WorldState, road: Road, tables: LaneTables, current_lane: torch.Tensor,
-                   adjacent_lane: torch.Tensor, d_max: float = D_MAX_M) -> Snapshot:
+                   adjacent_lane: torch.Tensor, d_max: float = D_MAX_M, by_body: bool = False) -> Snapshot:
     """SV1..SV4 of the ego: nearest front/rear vehicle in current_lane and adjacent_lane (B,) within d_max.
 
-    Reads s.x, s.y, s.v, s.heading, s.lane (B, N). Lane membership is by the nearest lane centre; 'front'
-    means the SV's centre is ahead of the ego's. The end of a dropped lane ahead appears as a standing
-    vehicle whose rear bumper is at the lane end.
+    Reads s.x, s.y, s.v, s.heading, s.lane (B, N). Lane membership is by the nearest lane centre (the
+    paper's SV_i), or with by_body by the body: a vehicle is in every lane its rotated box reaches into, so
+    a car standing across a lane line is in both lanes. 'front' means the SV's centre is ahead of the ego's.
+    The end of a dropped lane ahead appears as a standing vehicle whose rear bumper is at the lane end.
     """
     x, lane = s.x[:, 1:], s.lane[:, 1:]
     ego_x = s.x[:, 0]
@@ -66,7 +68,7 @@ def ego_neighbours(s: WorldState, road: Road, tables: LaneTables, current_lane: 
     inf = torch.full_like(dx, float("inf"))
     slots = []
     for lane_q in (current_lane, adjacent_lane):
-        in_lane = (lane == lane_q[:, None]) & near
+        in_lane = (_bodies_in(s, road, lane_q) if by_body else lane == lane_q[:, None]) & near
         front_d, front_i = torch.where(in_lane & (dx > 0), dx, inf).min(1)
         rear_d, rear_i = torch.where(in_lane & (dx <= 0), -dx, inf).min(1)
         slots.append((front_d, front_i, lane_q))
@@ -109,3 +111,10 @@ def ego_neighbours(s: WorldState, road: Road, tables: LaneTables, current_lane: 
         current_lane=current_lane,
         adjacent_lane=adjacent_lane,
     )
+
+
+def _bodies_in(s: WorldState, road: Road, lane_q: torch.Tensor) -> torch.Tensor:
+    """(B, N - 1) bool: the SVs whose rotated box reaches into lane_q's strip (B,) (none where lane_q < 0)."""
+    y, half, w = s.y[:, 1:], lateral_half_extent(s.heading[:, 1:]), road.lane_width_m
+    low = (lane_q.to(y.dtype) - 0.5)[:, None] * w  # the lane's strip is [low, low + w]
+    return (y + half > low) & (y - half < low + w) & (lane_q >= 0)[:, None]

@@ -225,10 +225,11 @@ class World:
         s = self.state
         return StageFlags(s.merged, s.exit1, s.exit2)
 
-    def neighbours(self, current_lane: torch.Tensor, adjacent_lane: torch.Tensor, d_max: float = D_MAX_M) -> Snapshot:
-        """SV1..SV4 of the ego: nearest front/rear vehicle in current_lane and adjacent_lane (B,) within d_max
-        (see ego_neighbours)."""
-        return ego_neighbours(self.state, self.road, self._lane_tables, current_lane, adjacent_lane, d_max)
+    def neighbours(self, current_lane: torch.Tensor, adjacent_lane: torch.Tensor, d_max: float = D_MAX_M,
+                   by_body: bool = False) -> Snapshot:
+        """SV1..SV4 of the ego: nearest front/rear vehicle in current_lane and adjacent_lane (B,) within d_max,
+        lanes by centre or by_body (see ego_neighbours)."""
+        return ego_neighbours(self.state, self.road, self._lane_tables, current_lane, adjacent_lane, d_max, by_body)
 
 
 def check_world_args(scenario: str, traffic: str, num_envs, style: str | None, num_vehicles, max_steps,

@@ -3,7 +3,8 @@
 hand_world: a hand-built stand-in for the simulator's world: B scenes of an ego and a few SVs, no dynamics.
 
 neighbours() picks, per env, the nearest SV ahead and behind (centre x) in the queried lanes, lane
-membership by the nearest lane centre, within d_max; it records every query it answers.
+membership by the nearest lane centre (or by_body: every lane its rotated box reaches into), within d_max;
+it records every query by centre it answers.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).parent))  # table_1 (the golden Table 1) importable by name
 
-from highway_srl.constants import D_MAX_M
+from highway_srl.constants import D_MAX_M, VEHICLE_LENGTH_M, VEHICLE_WIDTH_M
 from highway_srl.sim.road import Road
 from highway_srl.sim.snapshot import NO_VEHICLE, Snapshot
 
@@ -37,15 +38,24 @@ class HandWorld:
     def _lane(self, y: float) -> int:
         return max(0, min(self.road.num_lanes - 1, round(y / self.road.lane_width_m)))
 
-    def neighbours(self, current_lane: torch.Tensor, adjacent_lane: torch.Tensor) -> Snapshot:
-        self.queries.append((current_lane.tolist(), adjacent_lane.tolist()))
+    def _in(self, sv, lane: int, by_body: bool) -> bool:
+        """The SV is in the lane by its centre, or by_body where its rotated box reaches into the lane's strip."""
+        if not by_body:
+            return self._lane(sv[1]) == lane
+        half = 0.5 * VEHICLE_WIDTH_M * abs(math.cos(sv[3])) + 0.5 * VEHICLE_LENGTH_M * abs(math.sin(sv[3]))
+        w = self.road.lane_width_m
+        return sv[1] + half > (lane - 0.5) * w and sv[1] - half < (lane + 0.5) * w
+
+    def neighbours(self, current_lane: torch.Tensor, adjacent_lane: torch.Tensor, by_body: bool = False) -> Snapshot:
+        if not by_body:  # `queries` keeps the ID mapping's asks (by centre)
+            self.queries.append((current_lane.tolist(), adjacent_lane.tolist()))
         rows = []
         for b, scene in enumerate(self.scenes):
             ex, ey, ev, eh = scene["ego"]
             slots = []
             for lane in (int(current_lane[b]), int(adjacent_lane[b])):
                 cand = [(i, sv) for i, sv in enumerate(scene["svs"])
-                        if lane >= 0 and self._lane(sv[1]) == lane and abs(sv[0] - ex) <= D_MAX_M]
+                        if lane >= 0 and self._in(sv, lane, by_body) and abs(sv[0] - ex) <= D_MAX_M]
                 ahead = min((c for c in cand if c[1][0] > ex), key=lambda c: c[1][0], default=None)
                 behind = max((c for c in cand if c[1][0] <= ex), key=lambda c: c[1][0], default=None)
                 slots.append((ahead, behind))

@@ -20,10 +20,7 @@ from highway_srl.rules.avoidable import SIDE_SWIPE, STOOD, ego_avoidable
 CASES = sorted((Path(__file__).parent / "cases").glob("*.json"))
 # counterexamples the safe profile does not close yet, with what is missing: the greedy-ttc search over
 # every scene and levels A-F (256 episodes a cell and mode), uniform and greedy-ttc, found these
-TURNING_IN = ("a car standing mid-change, its tail reaching into the ego's lane, behind the nearest car of its own "
-              "lane: neither the pair's SV1..SV4 nor the third-lane watch holds it")
-OPEN = dict.fromkeys([f"safe-greedy-turning-in-side-{where}.json" for where in ("multi-lane-D", "merge-B", "exit-E")],
-                     TURNING_IN)
+OPEN: dict[str, str] = {}  # none at present
 # safe-profile cases whose collision is not the ego's to avoid (rules.avoidable), with the verdict's reason:
 # the ego stood through the trace with no allowed move; the ego stood centred with a target lane it had not
 # moved toward while a car from the far lane behind it turned in (RSS: a car at standstill is not responsible);
@@ -38,19 +35,25 @@ UNAVOIDABLE = {
                      "safe-cut-in-beside-a-stalled-change-multi-lane-A-adversarial.json",
                      "safe-greedy-cut-in-beside-a-stalled-change-multi-lane-B-adversarial.json"], (True, True, SIDE_SWIPE)),
 }
-# the safe-profile addition whose absence reproduces a case found under the safe profile
+# the safe-profile additions whose absence reproduces a case found under the safe profile (lanes_by_body,
+# added last, closes the tail-over-the-line and unseen-lane cases too: they come back with both off)
+NOT_BY_BODY = {"lanes_by_body": False}
 CLOSED_BY = {
     **{f"safe-idle-only-into-a-standing-car-{where}.json": {"last_resort_stops": False}
        for where in ("two-lane-F", "two-lane-F-adversarial", "multi-lane-F-adversarial", "exit-F-adversarial")},
     # a car standing mid-change, its tail over the line into the ego's lane, heading away from it
     **dict.fromkeys(["safe-tail-over-the-line-two-lane-F-adversarial.json",
                      "safe-greedy-tail-over-the-line-multi-lane-F.json",
-                     "safe-greedy-tail-over-the-line-merge-F.json"], {"reaching_over_is_near": False}),
+                     "safe-greedy-tail-over-the-line-merge-F.json"], {"reaching_over_is_near": False, **NOT_BY_BODY}),
     # multi-lane: a car of the lane the acting two-lane model does not hold, reaching into the ego's path
     **dict.fromkeys(["safe-cut-in-from-the-unseen-lane-multi-lane-C-adversarial.json",
-                     "safe-greedy-unseen-lane-tail-over-the-line-multi-lane-F.json"], {"watch_third_lane": False}),
+                     "safe-greedy-unseen-lane-tail-over-the-line-multi-lane-F.json"], {"watch_third_lane": False, **NOT_BY_BODY}),
     # an ego drifting on after an aborted change, its nose over the line, Eq. 31 flagging none of its corners
     "safe-nose-over-the-line-after-an-aborted-change-multi-lane-F.json": {"ego_body_straddles": False},
+    # a car stopped mid-change across the line, its tail in the ego's lane, behind the nearest car of its
+    # own lane: no slot held it until the lanes were also asked by body
+    **dict.fromkeys([f"safe-greedy-across-the-line-behind-the-nearest-{where}.json"
+                     for where in ("multi-lane-D", "merge-B", "exit-E")], NOT_BY_BODY),
 }
 
 

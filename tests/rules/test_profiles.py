@@ -1,7 +1,7 @@
 """Control profiles of the SafetyLayer (docs/paper-notes.md, "Profiles: paper vs safe").
 
 `paper` = Eqs. 31-35 as printed plus the hold of a lane change under way; `safe` = today's behaviour with
-our ten additions. One crafted situation per addition where the two profiles differ exactly as documented,
+our eleven additions. One crafted situation per addition where the two profiles differ exactly as documented,
 and a golden test of Eqs. 31-35 under `paper`.
 """
 
@@ -30,10 +30,10 @@ def test_the_default_profile_is_every_entry_points_and_each_profile_sets_its_add
     layer = SafetyLayer(make_road("two-lane"), profile="safe")
     options = lambda lay: (lay.abort_unsafe_change, lay.brake_while_changing, lay.finish_in_window,  # noqa: E731
                            lay.straddle_grouping, lay.standstill_gap_m, lay.turning_in_is_near, lay.last_resort_stops,
-                           lay.reaching_over_is_near, lay.watch_third_lane, lay.ego_body_straddles)
-    assert options(layer) == (True, True, True, True, 1.0, True, True, True, True, True)
+                           lay.reaching_over_is_near, lay.watch_third_lane, lay.ego_body_straddles, lay.lanes_by_body)
+    assert options(layer) == (True, True, True, True, 1.0, True, True, True, True, True, True)
     paper = SafetyLayer(make_road("two-lane"), profile="paper")
-    assert options(paper) == (False, False, False, False, 0.0, False, False, False, False, False)
+    assert options(paper) == (False, False, False, False, 0.0, False, False, False, False, False, False)
     assert paper.hold_lane_change and layer.hold_lane_change  # both hold a change under way
     assert set(PROFILES) == {"paper", "safe"}
 
@@ -124,10 +124,11 @@ def test_an_sv_turning_in_steeply_ahead_counts_as_near_the_boundary_only_under_s
     """turning_in_is_near: the traced mild-adversary crash. Ego in lane 1 at 8 m/s; a forced SV crawls at
     1.5 m/s 7.5 m ahead (2.5 m bumper gap, R2 = 0) in lane 0, centre 0.62 m off its lane centre, turning in
     at 0.541 rad (its nose over the line, Eq. 31 flags no corner). Nothing ahead in the ego's lane (R1 = 1):
-    paper allows Faster (R*1 = R1), safe groups the SV (R*1 = R'1 ∧ R'2 = 0)."""
+    paper allows Faster (R*1 = R1), safe groups the SV (R*1 = R'1 ∧ R'2 = 0). lanes_by_body off: by body the
+    SV is the ego's lane's car too and R1 = 0 by itself."""
     road = make_road("two-lane")
     scene = [{"ego": (0.0, W, 8.0, 0.0), "svs": [(7.5, 0.62, 1.5, 0.541)]}]
-    for name, layer in layers(road).items():
+    for name, layer in layers(road, lanes_by_body=False).items():
         p = layer.observe(hand_world(road, scene)).primary
         assert p.r_sv[0, :2].tolist() == [True, False], name
         assert p.mask[0, FASTER].item() is (name == "paper"), name
@@ -138,10 +139,11 @@ def test_a_car_with_its_tail_over_the_line_counts_as_near_the_boundary_only_unde
     5.3 m ahead (0.3 m bumper gap, R2 = 0), centre 1.15 m beyond the line, heading away at 0.453 rad: its
     tail is 0.84 m into the ego's lane, no corner within ε_p of the line, so Eq. 31 and turning_in_is_near
     miss it. Nothing ahead in the ego's lane (R1 = 1): paper, and safe without the addition, allow Faster;
-    safe groups the car (R*1 = R'1 ∧ R'2 = 0)."""
+    safe groups the car (R*1 = R'1 ∧ R'2 = 0). lanes_by_body off, as above."""
     road = make_road("two-lane")
     scene = [{"ego": (0.0, 0.0, 1.2, 0.0), "svs": [(5.3, 2.9, 0.0, 0.453)]}]
-    cases = {**layers(road), "safe without it": SafetyLayer(road, reaching_over_is_near=False)}
+    cases = {**layers(road, lanes_by_body=False),
+             "safe without it": SafetyLayer(road, reaching_over_is_near=False, lanes_by_body=False)}
     for name, layer in cases.items():
         p = layer.observe(hand_world(road, scene)).primary
         assert p.r_sv[0, :2].tolist() == [True, False], name
@@ -198,6 +200,23 @@ def test_a_third_lane_car_reaching_into_the_near_lane_joins_its_rules_only_under
         assert p.mask[0, LANE_CHANGE].item() is (name != "safe"), name
         assert p.mask[1, FASTER].item() is (name != "safe"), name
         assert p.mask[0, FASTER].item(), name  # the ego's own lane is free
+
+
+def test_a_car_across_the_line_behind_the_nearest_of_its_lane_joins_the_egos_lane_only_under_safe(hand_world):
+    """lanes_by_body: the traced multi-lane D case on two lanes. A car stopped mid-change at 0.6 rad, centre
+    y 2.27 in lane 1, its tail 1.7 m into lane 0, 12 m ahead of an ego at 10 m/s; a car of lane 1 at 9 m/s
+    8 m ahead is SV2, so no slot holds the stopped one and lane 0 looks free: paper, and safe without the
+    addition, allow Faster. By body it is lane 0's car ahead, 7 m bumper to bumper, below the 10.4 m + 1 m
+    the ego needs to stop behind it: R*1 = 0, and Idle at the last resort brakes to stand within 7 - 1 m."""
+    road = make_road("two-lane")
+    scene = [{"ego": (0.0, 0.0, 10.0, 0.0), "svs": [(12.0, 2.27, 0.0, 0.6), (8.0, W, 9.0, 0.0)]}]
+    cases = {**layers(road), "safe without it": SafetyLayer(road, lanes_by_body=False)}
+    for name, layer in cases.items():
+        p = layer.observe(hand_world(road, scene)).primary
+        assert p.mask[0, FASTER].item() is (name != "safe"), name
+        assert p.gaps_m[0, 1].item() == pytest.approx(3.0), name  # the observation keeps the paper's SV2
+    room = cases["safe"].last.primary.front_room_m
+    assert room.item() == pytest.approx(12.0 - 5.0 - 1.0)
 
 
 def test_the_front_room_is_computed_only_where_idle_stops_at_the_last_resort(hand_world):
