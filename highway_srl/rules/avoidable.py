@@ -13,11 +13,12 @@ its kind (front, rear, side, road), who was changing lanes, and per decision the
 actions and the longitudinal and lateral offsets and speeds of the vehicle that was hit. Cases, in order:
   1. an action the rule layer forbade was executed: avoidable (any allowed action was a choice);
   2. road (a lane end, a barrier, the road's edge): avoidable (the ego's own path);
-  3. the ego was changing lanes and moved sideways toward the car it hit by LATERAL_MOVE_M or more within
-     the trace: avoidable (it changed into an occupied or closing gap). An ego whose change stood still or
-     went away from that car (a change stalled half-way, a target lane it had not begun to move to, an
-     abort) has kept its lateral position: it is judged by the cases below, as RSS's lateral rule judges
-     the car that moved sideways into the other;
+  3. the ego was changing lanes and moved sideways toward the car it hit, past the centre of the lane it
+     started the trace in, by LATERAL_MOVE_M or more: avoidable (it changed into an occupied or closing
+     gap). An ego whose change stood still, went away from that car or settled toward its own lane's
+     centre (a change stalled half-way, a target lane it had not begun to move to, an abort) has kept its
+     lane: it is judged by the cases below, as RSS's lateral rule judges the car that moved sideways into
+     the other;
   4. front: unavoidable only if the car it hit came into its path within the trace (seen out of it first,
      or out of it at the last decision) at a bumper gap the ego could not stop in, braking at its limit
      at once while that car braked at its own (room_to_stop); avoidable otherwise, also when the car was
@@ -69,8 +70,8 @@ REAR = "hit from behind by a car that did not brake for the ego"
 AVOIDABLE_REASONS = (FORBIDDEN_ACTION, ROAD, EGO_CHANGED, RAN_INTO, SIDE_ROOM, SIDE_KEEPING, NEEDLESS_BRAKE)
 UNAVOIDABLE_REASONS = (STOOD, CUT_IN, SIDE_SWIPE, REAR)
 # RSS's lateral rule blames the car that moved sideways toward the other beyond a small fluctuation (its μ):
-# the ego counts as changing into the car it hit only if it came this much closer to it sideways within the
-# trace (3 s); a standing car creeping at 0.44 m/s with a 0.15 rad heading drifts 0.05 m in that time.
+# the ego counts as changing into the car it hit only if it moved this much toward it, past its lane's
+# centre, within the trace (3 s); a standing car creeping at 0.44 m/s at 0.15 rad drifts 0.05 m in that time.
 LATERAL_MOVE_M = 0.2
 OFF_CENTRE_M = 0.5  # the census (experiments.collisions) takes a centre this far off its lane's centre as changing
 
@@ -159,6 +160,8 @@ def entry_verdict(rows: list[dict], avoidable_reason: str, unavoidable_reason: s
         return True, avoidable_reason
     r = rows[i]
     gap = r["dx"] - VEHICLE_LENGTH_M
+    if gap <= 0.0:  # alongside or behind the ego's front when it came in: no braking of the ego answers it
+        return False, unavoidable_reason
     return (True, avoidable_reason) if room_to_stop(gap, r["v"], r["v_sv"]) else (False, unavoidable_reason)
 
 
@@ -169,14 +172,17 @@ def stood(rows: list[dict]) -> bool:
 
 
 def moved_toward(rows: list[dict]) -> bool:
-    """Case 3: the ego came LATERAL_MOVE_M or more closer sideways to the car it hit between the first and
-    the last decision of the trace (the side that car is on at the last one); True where the trace does not
-    keep the ego's or that car's lateral position (doubt falls on the avoidable side)."""
+    """Case 3: within the trace the ego moved LATERAL_MOVE_M or more sideways toward the car it hit (the side
+    that car is on at the last decision), counting only the part past the centre of the lane it started the
+    trace in: settling toward its own lane's centre is keeping its lane, not changing into the car's. True
+    where the trace does not keep the ego's or that car's lateral position (doubt falls on the avoidable side)."""
     first, last = rows[0], rows[-1]
     if first.get("y") is None or last.get("y") is None or last.get("dy") is None:
         return True
     side = 1.0 if last["dy"] > 0 else -1.0
-    return (last["y"] - first["y"]) * side >= LATERAL_MOVE_M
+    centre = first["y"] if first.get("lane") is None else first["lane"] * LANE_WIDTH_M
+    past = lambda y: max(0.0, (y - centre) * side)  # noqa: E731
+    return past(last["y"]) - past(first["y"]) >= LATERAL_MOVE_M
 
 
 def _needless_brake(row: dict) -> bool:

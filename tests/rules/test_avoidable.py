@@ -71,6 +71,17 @@ def test_a_forced_cut_in_at_zero_metres_is_unavoidable():
     assert ego_avoidable("front", False, True, rows[:1]) == (False, CUT_IN)
 
 
+def test_a_car_coming_in_from_beside_or_behind_is_unavoidable_however_fast_it_is():
+    """The falsifier's exit B case: the ego stands centred in its lane, a car from the next lane 3.5 m behind
+    at 11.6 m/s turns in and meets its side. At the entry its centre is 2.2 m behind the ego's (bumper gap
+    -7.2 m): room_to_stop, meant for a leader, would credit the car's own 8.6 m braking distance and call it
+    room; a car not ahead of the ego's front leaves none."""
+    rows = [row(-4.86, dy=-3.5, v=0.0, v_sv=11.64, action="Slower"), row(-3.46, dy=-3.36, v=0.0, v_sv=10.89),
+            row(-2.2, dy=-3.12, v=0.44, v_sv=10.14, action="Faster"), row(-1.08, dy=-2.88, v=0.88, v_sv=9.39)]
+    assert ego_avoidable("side", False, True, rows) == (False, SIDE_SWIPE)
+    assert ego_avoidable("front", False, True, rows) == (False, CUT_IN)
+
+
 def test_a_cut_in_with_room_to_brake_is_avoidable():
     rows = [row(22.0, dy=3.5), row(21.0, dy=2.2), row(15.0), row(9.0), row(5.0)]  # 16 m gap, 8 vs 6 m/s
     assert ego_avoidable("front", False, True, rows) == (True, RAN_INTO)
@@ -103,8 +114,9 @@ def test_an_ego_changing_lanes_counts_as_changing_into_the_car_only_if_it_moved_
     ego stands centred in lane 1 (y 3.59) with LaneChange's target lane 2, so the census counts it as
     changing lanes; a car from lane 0 behind turns in and meets its side. It has not moved toward that car,
     so the side case judges it (the car came in from out of the path, from behind: no room, unavoidable).
-    The same for a change stalled half-way (y 2.09, the traced multi-lane A case) and for an ego moving
-    away; 0.2 m (LATERAL_MOVE_M) or more toward the car within the trace is changing into it."""
+    The same for a change stalled half-way (y 2.09, the traced multi-lane A case), for an ego moving away
+    and for one settling toward its own lane's centre (lane 1's is 3.5); 0.2 m (LATERAL_MOVE_M) or more
+    toward the car past that centre within the trace is changing into it."""
     standing = [{**row(-6.3 + 0.6 * k, dy=-3.5 + 0.3 * k, v=0.0, v_sv=6.0, action="LaneChange",
                        allowed=["Faster", "Idle", "LaneChange"]), "y": 3.59, "lane": 1} for k in range(8)]
     assert ego_avoidable("side", True, True, standing) == (False, SIDE_SWIPE)
@@ -112,10 +124,14 @@ def test_an_ego_changing_lanes_counts_as_changing_into_the_car_only_if_it_moved_
     assert ego_avoidable("side", True, True, stalled) == (False, SIDE_SWIPE)
     creeping = [{**s, "v": 0.44} for s in standing]  # moving on along its lane is not moving sideways
     assert ego_avoidable("side", True, True, creeping) == (False, SIDE_SWIPE)
-    # the car is below it (dy < 0): toward is down
-    assert ego_avoidable("side", True, True, [*standing[:-1], {**standing[-1], "y": 3.59 - 0.2}]) == (True, EGO_CHANGED)
-    assert ego_avoidable("side", True, True, [*standing[:-1], {**standing[-1], "y": 3.59 - 0.19}]) == (False, SIDE_SWIPE)
+    # the car is below it (dy < 0): toward is down, past lane 1's centre 3.5
+    assert ego_avoidable("side", True, True, [*standing[:-1], {**standing[-1], "y": 3.5 - 0.2}]) == (True, EGO_CHANGED)
+    assert ego_avoidable("side", True, True, [*standing[:-1], {**standing[-1], "y": 3.5 - 0.19}]) == (False, SIDE_SWIPE)
     assert ego_avoidable("side", True, True, [*standing[:-1], {**standing[-1], "y": 4.2}]) == (False, SIDE_SWIPE)
+    # from 4.3 (above the centre) down to 3.6: 0.7 m toward the car, none of it past the centre (the uniform
+    # ego's multi-lane A case, mirrored: its nose up at 0.4 rad, it crept toward its own lane's centre)
+    settling = [{**s, "y": 4.3 - 0.1 * k} for k, s in enumerate(standing)]
+    assert ego_avoidable("side", True, True, settling) == (False, SIDE_SWIPE)
     assert ego_avoidable("side", True, True, [{**s, "y": None} for s in standing]) == (True, EGO_CHANGED)
     # a stalled ego met by a car keeping its lane: the side case with neither changing, doubt on the ego
     assert ego_avoidable("side", True, False, stalled) == (True, SIDE_KEEPING)
