@@ -27,8 +27,8 @@ actions and the longitudinal and lateral offsets and speeds of the vehicle that 
      is avoidable, one that turned in alongside or below the stopping distance is not); else avoidable;
   6. rear: avoidable if the ego braked (Slower) while the car ahead did not require it (R*1 = 1) and the
      hit car behind was inside the RSS distance it needed to stop for the ego; else unavoidable.
-Before 4 and 5: the ego stood through the whole trace and no decision allowed it to move (Faster, the only
-action that moves a standing ego, never allowed): unavoidable. RSS's proper response, longitudinal and
+Before 4 and 5: the ego stood through the last STANDING_ROWS decisions (1 s) and none of them allowed it to
+move (Faster, the only action that moves a standing ego, never allowed): unavoidable. RSS's proper response, longitudinal and
 lateral, ends at zero speed; a car at standstill with no allowed move has performed it, and the car that
 moved into it is responsible.
 Doubtful cases fall on the avoidable side: a claim of zero avoidable collisions must not rest on them.
@@ -73,6 +73,9 @@ UNAVOIDABLE_REASONS = (STOOD, CUT_IN, SIDE_SWIPE, REAR)
 # the ego counts as changing into the car it hit only if it moved this much toward it, past its lane's
 # centre, within the trace (3 s); a standing car creeping at 0.44 m/s at 0.15 rad drifts 0.05 m in that time.
 LATERAL_MOVE_M = 0.2
+# the standing verdict reads the last second: a car that has stood that long with no allowed move has done
+# RSS's proper response, whatever it did before (the trace is 3 s; it braked to a stop within it)
+STANDING_ROWS = 8
 OFF_CENTRE_M = 0.5  # the census (experiments.collisions) takes a centre this far off its lane's centre as changing
 
 
@@ -139,7 +142,8 @@ def ego_avoidable(kind: str, ego_changing: bool, sv_changing: bool, rows: list[d
         return True, EGO_CHANGED
     if kind == "rear":
         return (True, NEEDLESS_BRAKE) if any(_needless_brake(r) for r in rows) else (False, REAR)
-    if stood(rows) and not any("Faster" in r["allowed"] for r in rows):
+    standing = rows[-STANDING_ROWS:]
+    if stood(standing) and not any("Faster" in r["allowed"] for r in standing):
         return False, STOOD
     if kind == "side":
         return entry_verdict(rows, SIDE_ROOM, SIDE_SWIPE) if sv_changing else (True, SIDE_KEEPING)
@@ -166,8 +170,8 @@ def entry_verdict(rows: list[dict], avoidable_reason: str, unavoidable_reason: s
 
 
 def stood(rows: list[dict]) -> bool:
-    """The ego stood through the whole trace: at standstill in the state of every decision and never
-    executing Faster, the only action that moves a standing ego (the others' target speeds are at most v)."""
+    """The ego stood through these decisions: at standstill in the state of every one and never executing
+    Faster, the only action that moves a standing ego (the others' target speeds are at most v)."""
     return bool(rows) and all(r["v"] == 0.0 and r["action"] != "Faster" for r in rows)
 
 

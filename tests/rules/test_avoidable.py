@@ -96,7 +96,7 @@ def test_the_ego_accelerating_into_a_stopped_car_is_avoidable():
 
 def test_a_standing_ego_with_no_allowed_move_is_not_responsible():
     """RSS: a car at standstill has performed the proper response (zero speed, longitudinal and lateral).
-    The ego stands through the whole trace with Slower alone allowed while a car turning in stays within the
+    The ego stands through the last second (8 decisions) with Slower alone allowed while a car turning in stays within the
     path margin (the traced multi-lane F case: without the standstill case doubt makes it avoidable)."""
     alongside = [row(2.5 + 0.2 * k, dy=2.3 - 0.1 * k, v=0.0, v_sv=1.4, action="Slower", allowed=["Slower"])
                  for k in range(8)]
@@ -105,6 +105,11 @@ def test_a_standing_ego_with_no_allowed_move_is_not_responsible():
     # a move allowed at any decision, or the ego moving at one: doubt again, avoidable
     assert ego_avoidable("side", False, True, [{**alongside[0], "allowed": ALL}, *alongside[1:]]) == (True, SIDE_ROOM)
     assert ego_avoidable("side", False, True, [{**alongside[0], "v": 0.5}, *alongside[1:]]) == (True, SIDE_ROOM)
+    # the last second decides: braking to a stop before it (the falsifier's two-lane D case: Slower alone
+    # from 3 m/s, then standing while a car alongside turned in across its front corner) changes nothing
+    braked = [row(2.4, dy=-2.9, v=3.0 - 0.75 * k, v_sv=0.0, action="Slower", allowed=["Slower"]) for k in range(4)]
+    assert ego_avoidable("side", False, True, braked + alongside) == (False, STOOD)
+    assert ego_avoidable("side", False, True, braked + alongside[:7]) == (True, SIDE_ROOM)  # 7 standing decisions
     # behind: the rear case keeps its own reason
     assert ego_avoidable("rear", False, False, [row(-6.0, v=0.0, v_sv=5.0, action="Slower", allowed=["Slower"], r1=False)]) == (False, REAR)
 

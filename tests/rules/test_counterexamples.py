@@ -31,6 +31,9 @@ UNAVOIDABLE = {
     "safe-standing-ego-side-cut-in-multi-lane-F-adversarial.json": (False, True, STOOD),
     "safe-greedy-standing-change-hit-from-the-side-merge-C-adversarial.json": (True, True, SIDE_SWIPE),
     "safe-greedy-cut-in-from-alongside-two-lane-D-adversarial.json": (False, True, SIDE_SWIPE),
+    # braked to a stand with Slower alone, then stood 2 s while a car stopped alongside ahead turned across
+    # its front corner: the last second decides
+    "safe-greedy-braked-to-a-stand-then-cut-across-two-lane-D-adversarial.json": (False, True, STOOD),
     **dict.fromkeys(["safe-cut-in-behind-a-stalled-change-exit-B-adversarial.json",
                      "safe-cut-in-beside-a-stalled-change-multi-lane-A-adversarial.json",
                      "safe-greedy-cut-in-beside-a-stalled-change-multi-lane-B-adversarial.json"], (True, True, SIDE_SWIPE)),
