@@ -54,6 +54,7 @@ def _setting(results: Results) -> list[str]:
     b = state.get("budget_config", {})
     inv = state.get("invocations", [])
     wall = sum(i.get("wall_s") or 0.0 for i in inv)
+    ended = sum(i.get("wall_s") is not None for i in inv)
     job_s = sum((j.get("wall_s") or 0.0) for j in state.get("jobs", {}).values() if j.get("status") == "done")
     counts: dict[str, int] = {}
     for j in state.get("jobs", {}).values():
@@ -76,7 +77,8 @@ def _setting(results: Results) -> list[str]:
         + ", ".join(f"{n} {s}" for s, n in sorted(counts.items())) + ".",
         f"- **Machine:** {machine}; host {m.get('host', '?')}; executor "  # older study.json files say 'backend'
         f"{last.get('executor', last.get('backend', '?'))} with {last.get('jobs', '?')} job(s) at a time.",
-        f"- **Wall time:** {_duration(wall)} over {len(inv)} invocation(s) (the last: {_duration(last.get('wall_s'))});"
+        f"- **Wall time:** {_duration(wall)} in the {ended} of {len(inv)} invocation(s) that ended (one stopped by"
+        f" a kill or a reboot records none; the last: {_duration(last.get('wall_s'))});"
         f" {_duration(job_s)} of job time in finished jobs"
         + (f"; {sum(rates) / len(rates):,.0f} env-steps/s per training process on average" if rates else "") + ".",
         _version(state),
