@@ -305,13 +305,16 @@ class SafetyLayer:
         front = torch.tensor(FRONT_SLOTS, device=ego_x.device)
         dx = veh.x - ego_x[:, None]
         gaps = torch.where(front, dx, -dx) - VEHICLE_LENGTH_M
-        r_sv = self._rule(gaps, ego_vx, veh.vx, front)
+        slots = None if bodies is None else body_slots(bodies, lanes.default_adjacent, front)
+        if slots is None:
+            r_sv = self._rule(gaps, ego_vx, veh.vx, front)
+        else:  # the cars whose bodies reach into the pair's lanes join their slots (one rule call for both)
+            both = self._rule(torch.cat([gaps, slots.gaps_m], 1), ego_vx, torch.cat([veh.vx, slots.vx], 1),
+                              torch.cat([front, front]))
+            r_sv = with_bodies(both[:, :4], slots, both[:, 4:])
         cars = None if third is None else third_lane_cars(third, lanes, w)
         if cars is not None:  # the third lane's cars reaching into the near lane join its rules
             r_sv = with_third_lane(r_sv, cars, self._rule(cars.gaps_m, ego_vx, cars.vx, front[[0, 2]]))
-        slots = None if bodies is None else body_slots(bodies, lanes.default_adjacent, front)
-        if slots is not None:  # the cars whose bodies reach into the pair's lanes join their slots
-            r_sv = with_bodies(r_sv, slots, self._rule(slots.gaps_m, ego_vx, slots.vx, front))
         base_y = lanes.base_lane.to(ego_x.dtype) * w
         ego_y_local = snap.ego_y - base_y
         sv_y_local = veh.y - base_y[:, None]

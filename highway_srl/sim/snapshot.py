@@ -66,9 +66,10 @@ def ego_neighbours(s: WorldState, road: Road, tables: LaneTables, current_lane: 
     dx = x - ego_x[:, None]
     near = dx.abs() <= d_max
     inf = torch.full_like(dx, float("inf"))
+    half = lateral_half_extent(s.heading[:, 1:]) if by_body else None  # once for both lanes
     slots = []
     for lane_q in (current_lane, adjacent_lane):
-        in_lane = (_bodies_in(s, road, lane_q) if by_body else lane == lane_q[:, None]) & near
+        in_lane = (_bodies_in(s.y[:, 1:], half, road, lane_q) if by_body else lane == lane_q[:, None]) & near
         front_d, front_i = torch.where(in_lane & (dx > 0), dx, inf).min(1)
         rear_d, rear_i = torch.where(in_lane & (dx <= 0), -dx, inf).min(1)
         slots.append((front_d, front_i, lane_q))
@@ -113,8 +114,8 @@ def ego_neighbours(s: WorldState, road: Road, tables: LaneTables, current_lane: 
     )
 
 
-def _bodies_in(s: WorldState, road: Road, lane_q: torch.Tensor) -> torch.Tensor:
-    """(B, N - 1) bool: the SVs whose rotated box reaches into lane_q's strip (B,) (none where lane_q < 0)."""
-    y, half, w = s.y[:, 1:], lateral_half_extent(s.heading[:, 1:]), road.lane_width_m
-    low = (lane_q.to(y.dtype) - 0.5)[:, None] * w  # the lane's strip is [low, low + w]
-    return (y + half > low) & (y - half < low + w) & (lane_q >= 0)[:, None]
+def _bodies_in(y: torch.Tensor, half: torch.Tensor, road: Road, lane_q: torch.Tensor) -> torch.Tensor:
+    """(B, N - 1) bool: the SVs (centres y, lateral half extents half) whose rotated box reaches into lane_q's
+    strip (B,) (none where lane_q < 0)."""
+    low = (lane_q.to(y.dtype) - 0.5)[:, None] * road.lane_width_m  # the lane's strip is [low, low + w]
+    return (y > low - half) & (y < low + road.lane_width_m + half) & (lane_q >= 0)[:, None]

@@ -74,3 +74,13 @@ def test_step_phases_bad_input_is_one_line():
     done = _run("scripts/step_phases.py", "--envs", "0")
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert done.stderr.strip().splitlines()[-1].startswith("step_phases.py: error:")
+
+
+def test_rule_layer_cost_times_an_addition_off_and_on():
+    done = _run("scripts/rule_layer_cost.py", "--option", "lanes_by_body", "--scenario", "two-lane", "--envs", "4",
+                "--rounds", "2", "--repeats", "2")
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    assert out["option"] == "lanes_by_body" and out["ms_per_observe_off"] > 0 and out["ms_per_observe_on"] > 0
+    bad = _run("scripts/rule_layer_cost.py", "--option", "standstill_gap_m")  # not a boolean addition
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()[-1]) < 400
