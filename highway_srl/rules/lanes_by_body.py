@@ -4,7 +4,8 @@ The paper's SV1..SV4 are the nearest cars ahead and behind in the ego's lane and
 counting for the lane of its centre (§3.1). A car standing across a lane line, its centre in one lane and
 its tail or nose in the other, is in both; when a car of its centre's lane is nearer the ego, no slot holds
 it, so neither Eq. 31 nor the profile's reaching-over test ever sees it. The falsifier's greedy ego found
-this in multi-lane D, merge B and exit E (`tests/rules/cases/safe-greedy-turning-in-side-*`): the ego drove
+this in multi-lane D, merge B and exit E
+(`tests/rules/cases/safe-greedy-across-the-line-behind-the-nearest-*`): the ego drove
 at 10 m/s toward the tail of a car stopped mid-change at 0.5-0.6 rad, second in its lane, and could not
 stop when the car ahead of it moved on and the stopped one became SV2.
 
