@@ -21,6 +21,7 @@ import collections
 import contextlib
 import math
 import multiprocessing
+import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -29,7 +30,7 @@ import torch
 from highway_srl.agents.gating import explore_gate
 from highway_srl.constants import DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, TRAFFIC_LEVELS, V_MAX_MPS
 from highway_srl.experiments.collisions import DecisionTrace
-from highway_srl.experiments.runs import check_output_folder, read_json, write_json
+from highway_srl.experiments.runs import check_output_folder, provenance, read_json, write_json
 from highway_srl.experiments.scenario_params import check_parameters, scenario_world
 from highway_srl.interrupts import held, quiet_worker
 from highway_srl.rules import ACTIONS, FASTER, IDLE, LANE_CHANGE, SLOWER, SafetyLayer, control_profile
@@ -265,6 +266,7 @@ def falsify(settings: FalsifySettings, out: str | Path | None = None, progress=N
             for scene, adversarial, level in plan for start in range(0, settings.episodes, settings.envs)]
     batches = len(jobs) // len(plan)
     cells, kept, total = [], {}, {}
+    code, started = provenance(), time.monotonic()  # the code that runs is the code loaded now
     with batch_runner(processes) as run:
         for i, (counts, cases) in enumerate(run(_sweep_job, jobs)):
             if i % batches == 0:
@@ -279,7 +281,8 @@ def falsify(settings: FalsifySettings, out: str | Path | None = None, progress=N
         add_counts(total, {k: v for k, v in cell.items() if k not in ("scene", "level", "adversarial")})
     report = {"settings": asdict(settings), **total,
               "ego_avoidable_rate_upper_95": rate_upper_bound(total["ego_avoidable"], total["episodes"]),
-              "cells": cells, "cases": []}
+              "cells": cells, "cases": [], **code, "processes": processes,
+              "wall_s": round(time.monotonic() - started, 1)}
     if out is not None:
         report["cases"] = write_cases(Path(out), list(kept.values()))
         write_json(Path(out) / "report.json", report)

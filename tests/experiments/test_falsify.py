@@ -159,12 +159,14 @@ def test_evaluate_reports_the_verdict_of_every_collision_in_eval_json(tmp_path):
 
 def test_processes_split_the_batches_and_merge_to_the_same_report(tmp_path):
     """--processes: 4 batches of 4 episodes (paper profile, so there are collisions and cases) in one process
-    and in three workers give the same report, cases included."""
+    and in three workers give the same report, cases included (but for the record of the run itself)."""
     settings = dict(profile="paper", levels=("F",), modes=(False,), episodes=16, envs=4, steps=48, seed=0)
     one = fz.falsify(fz.FalsifySettings(**settings), tmp_path / "one")
     three = fz.falsify(fz.FalsifySettings(**settings), tmp_path / "three", processes=3)
     assert one["collisions"] >= 1 and one["cases"]
-    strip = lambda report: {**report, "cases": [{**c, "path": c["path"].split("/")[-1]} for c in report["cases"]]}  # noqa: E731
+    assert (one["processes"], three["processes"]) == (1, 3) and one["wall_s"] >= 0 and "commit" in one
+    strip = lambda report: {**report, "cases": [{**c, "path": c["path"].split("/")[-1]} for c in report["cases"]],  # noqa: E731
+                            "processes": None, "wall_s": None}
     assert strip(three) == strip(one)
     with pytest.raises(ValueError, match="processes must be a positive integer"):
         fz.falsify(fz.FalsifySettings(**settings), processes=0)
