@@ -49,7 +49,7 @@ def _duration(seconds: float | None) -> str:
     return f"{seconds / 3600:.1f} h"
 
 
-def _setting(results: Results) -> list[str]:
+def _setting(results: Results, progress: Table | None) -> list[str]:
     state = results.state
     b = state.get("budget_config", {})
     inv = state.get("invocations", [])
@@ -82,6 +82,7 @@ def _setting(results: Results) -> list[str]:
         f" {_duration(job_s)} of job time in finished jobs"
         + (f"; {sum(rates) / len(rates):,.0f} env-steps/s per training process on average" if rates else "") + ".",
         _version(state),
+        *([f"- **Progress:** {progress.notes[0].removesuffix('.')} (`tables/progress.md`)."] if progress else []),
         f"- **The paper's budget** (`--budget paper`): {BUDGETS['paper'].expected_cost}.",
     ]
     return lines
@@ -112,7 +113,7 @@ def table_blocks(t: Table, folder: str) -> list[tuple]:
 
 def build_blocks(root: Path, results: Results, tables: dict[str, Table], figures: list[Path]) -> list[tuple]:
     blocks: list[tuple] = [("h1", "MoE-RM-SRL study: our runs beside the paper")]
-    blocks.append(("ul", _setting(results)))
+    blocks.append(("ul", _setting(results, tables.get("progress"))))
     if results.budget != "paper":
         blocks.append(("p", f"These runs use the `{results.budget}` budget, far below the paper's 5e5 steps x 10 runs "
                             "x 100 episodes: the verdicts below describe these runs only and are no evidence for or "
@@ -141,6 +142,8 @@ def build_blocks(root: Path, results: Results, tables: dict[str, Table], figures
             blocks += table_blocks(tables[f"{name}_{other.profile}"], "tables")
     if "side_by_side" in tables:
         blocks += table_blocks(tables["side_by_side"], "tables")
+    if "progress" in tables:
+        blocks += table_blocks(tables["progress"], "tables")
     not_done = [(job_id, j) for job_id, j in sorted(results.state.get("jobs", {}).items()) if j.get("status") != "done"]
     blocks.append(("h2", "Jobs not done"))
     if not_done:
@@ -220,6 +223,9 @@ def render_html(blocks: list[tuple], root: Path) -> str:
 def seed_tables(results: Results) -> dict[str, Table]:
     """The seed-as-unit tables of the reproduction, then of each other profile as NAME_PROFILE."""
     out = {"seed_intervals": ST.intervals_table(results), "seeds": ST.seeds_table(results)}
+    progress = ST.progress_table(results)
+    if progress is not None:
+        out["progress"] = progress
     for other in results.beyond():
         for t in (ST.intervals_table(other), ST.seeds_table(other)):
             t.name, t.title = f"{t.name}_{other.profile}", f"Beyond the paper ({other.profile} profile): {t.title}"

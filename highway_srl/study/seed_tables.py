@@ -1,6 +1,7 @@
 """Every job's numbers seed by seed, and their intervals with the seed as the unit (stats.py).
 
-Two tables: `seeds` lists each seed's training and deployment numbers with the seeds that collapsed marked
+Three tables: `progress` lists every job of the study's budget with the seeds finished so far (a study run
+in chunks over days: which cells rest on how many runs); `seeds` lists each seed's training and deployment numbers with the seeds that collapsed marked
 (so a collapsed seed is seen, not averaged away); `seed_intervals` gives, per job, each training metric as
 the mean over seeds with its 95 % t interval, and each deployment rate as the mean of the per-seed rates with
 its t interval over seeds beside the pooled rate of all episodes with its Wilson interval, each labelled.
@@ -11,7 +12,7 @@ only seed in the level itself).
 from __future__ import annotations
 
 from highway_srl.study import stats as S
-from highway_srl.study.jobs import METHOD_LABELS, SCENES, TRAIN_TRAFFIC
+from highway_srl.study.jobs import BUDGETS, METHOD_LABELS, SCENES, TRAIN_TRAFFIC, study_jobs
 from highway_srl.study.results import Result, Results
 from highway_srl.study.table import Column, Table, fmt
 
@@ -149,3 +150,41 @@ def intervals_table(results: Results) -> Table:
                         "episodes [95% Wilson]: all seeds' "
                         f"episodes as one sample, which ignores the spread between runs. Deployment at level "
                         f"{TRAIN_TRAFFIC}."])
+
+
+def progress_table(results: Results) -> Table | None:
+    """One row per job of the study's budget, every profile of it: the seeds finished so far, of the budget's
+    seeds, and the chunks that hold them; None for a budget the study code does not know."""
+    budget = BUDGETS.get(results.budget)
+    if budget is None:
+        return None
+    done = {r.job.id: r for r in results.every if r.done}
+    entries = results.state.get("jobs", {})
+    order = {k: i for i, k in enumerate(SCENES)}, {k: i for i, k in enumerate(METHOD_LABELS)}
+    plan = sorted(study_jobs(budget), key=lambda j: (budget.profiles.index(j.profile), order[0][j.scene],
+                                                     order[1].get(j.method, 99), j.options))
+    rows = []
+    for job in plan:
+        seeds = sorted(done[job.id].job.seeds) if job.id in done else []
+        rows.append({"profile": job.profile, "scene": SCENES[job.scene].label, "method": job.label, "job": job.id,
+                     "seeds": len(seeds), "target": len(budget.seeds), "finished": " ".join(map(str, seeds)),
+                     "chunks": " ".join(entries.get(job.id, {}).get("chunks", [])) if seeds else ""})
+    cols = [Column("profile", "profile"), Column("scene", "scene"), Column("method", "method"), Column("job", "job"),
+            Column("seeds", "seeds finished", "int"), Column("target", "of", "int"),
+            Column("finished", "which"), Column("chunks", "chunks")]
+    shown = [c for c in cols if c.key != "job"]
+    return Table("progress", f"Progress: every job of the `{results.budget}` budget and its finished seeds", cols,
+                 rows, display=Table("", "", shown, rows), notes=[progress_text(rows)])
+
+
+def progress_text(rows: list[dict]) -> str:
+    """Per profile: jobs with a finished seed, with 3 or more, with every seed; seeds finished of all."""
+    parts = []
+    for profile in dict.fromkeys(r["profile"] for r in rows):
+        mine = [r for r in rows if r["profile"] == profile]
+        target = mine[0]["target"]
+        parts.append(f"{profile} profile: {sum(r['seeds'] > 0 for r in mine)} of {len(mine)} jobs have a finished "
+                     f"seed, {sum(r['seeds'] >= 3 for r in mine)} have 3 or more, "
+                     f"{sum(r['seeds'] >= target for r in mine)} all {target}; "
+                     f"{sum(r['seeds'] for r in mine):,} of {target * len(mine):,} seeds finished")
+    return "; ".join(parts) + "."

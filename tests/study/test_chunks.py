@@ -56,6 +56,12 @@ def test_report_only_merges_the_chunks_seeds_and_rebuilds_the_same_bytes(tmp_pat
     seeds = (root / "tables" / "seeds.csv").read_text().splitlines()
     assert len([s for s in seeds if s.startswith("Two-lane,MoE-RM-SRL,")]) == 3
     assert "(3 seeds, 12 episodes; budget smoke, paper profile)" in report
+    # the budget's whole plan with each job's finished seeds (smoke: one seed a job, so 3 of 1 here)
+    progress = (root / "tables" / "progress.csv").read_text().splitlines()
+    assert progress[0] == "profile,scene,method,job,seeds,target,finished,chunks"
+    assert "paper,Two-lane,MoE-RM-SRL,two-lane/moe-rm-srl,3,1,0 1 2,seeds-0-1 seeds-2" in progress
+    assert "paper,Merging,RL,merge/rl,0,1,," in progress and len(progress) == 1 + 43
+    assert "- **Progress:** paper profile: 1 of 43 jobs have a finished seed, 1 have 3 or more, 1 all 1; 3 of 43 " in report
     written = _written(root)
     assert "report.html" in written and "figures/deployment_pareto.png" in written
     assert main(["reproduce", "--out", str(root), "--report-only"]) == 0
