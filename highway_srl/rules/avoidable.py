@@ -22,7 +22,7 @@ actions and the longitudinal and lateral offsets and speeds of the vehicle that 
   4. front: unavoidable only if the car it hit came into its path within the trace (seen out of it first,
      or out of it at the last decision) at a bumper gap the ego could not stop in, braking at its limit
      at once while that car braked at its own (room_to_stop); avoidable otherwise, also when the car was
-     in its path all along;
+     in its path all along, unless it was behind the ego all along and drove up on it (came_from_behind);
   5. side: with the other car changing lanes, as case 4 (a car that turned in ahead with room to brake
      is avoidable, one that turned in alongside or below the stopping distance is not); else avoidable;
   6. rear: avoidable if the ego braked (Slower) while the car ahead did not require it (R*1 = 1) and the
@@ -76,6 +76,9 @@ LATERAL_MOVE_M = 0.2
 # the standing verdict reads the last second: a car that has stood that long with no allowed move has done
 # RSS's proper response, whatever it did before (the trace is 3 s; it braked to a stop within it)
 STANDING_ROWS = 8
+# a car behind that came this much nearer over the trace (3 s) drove up on the ego; one that stood or fell back
+# (the ego creeping away from a car standing beside it) did not, and the ego's doubt stays
+CLOSING_M = 1.0
 OFF_CENTRE_M = 0.5  # the census (experiments.collisions) takes a centre this far off its lane's centre as changing
 
 
@@ -99,15 +102,11 @@ def rss_safe_distance(v_rear: Num, v_front: Num, *, response_s: Num = DT_S, acce
     return d.clamp(min=0.0)
 
 
-def stopping_distance_steps(v: float, brake: float = EGO_BRAKE_MAX_MPS2, dt: float = DT_S) -> float:
-    """Distance (m) the ego covers from speed v braking at `brake` every step of dt until it stands, as the
-    simulator integrates it (each step covers the mean of its start and end speeds times dt; the last
-    step ends at 0): n v dt - ½ n² brake dt² for the n full steps, then half the remaining speed times dt."""
-    if v <= 0:
-        return 0.0
-    n = int(v // (brake * dt))
-    rest = v - n * brake * dt
-    return n * v * dt - 0.5 * n * n * brake * dt * dt + 0.5 * rest * dt
+def stopping_distance_steps(v: float, brake: float = EGO_BRAKE_MAX_MPS2) -> float:
+    """Distance (m) the ego covers from speed v braking at `brake` every step until it stands, as the
+    simulator integrates it: constant deceleration exactly over each step, the last one ending where the
+    car stands (sim/dynamics.integrate_speed), so v^2 / (2 brake) whatever the step's length."""
+    return v * v / (2.0 * brake) if v > 0 else 0.0
 
 
 def room_to_stop(gap_m: float, v_ego: float, v_sv: float, ego_brake: float = EGO_BRAKE_MAX_MPS2,
@@ -161,12 +160,23 @@ def entry_verdict(rows: list[dict], avoidable_reason: str, unavoidable_reason: s
     while i > 0 and paths[i] and paths[i - 1]:
         i -= 1
     if i <= 0 or not paths[i] or paths[i - 1] is not False:
-        return True, avoidable_reason
+        return (False, unavoidable_reason) if came_from_behind(rows) else (True, avoidable_reason)
     r = rows[i]
     gap = r["dx"] - VEHICLE_LENGTH_M
     if gap <= 0.0:  # alongside or behind the ego's front when it came in: no braking of the ego answers it
         return False, unavoidable_reason
     return (True, avoidable_reason) if room_to_stop(gap, r["v"], r["v_sv"]) else (False, unavoidable_reason)
+
+
+def came_from_behind(rows: list[dict]) -> bool:
+    """The hit car drove up from behind: its centre behind the ego's at every decision of the trace and
+    CLOSING_M or more nearer at the last than at the first. RSS puts the contact on it twice over: it is the
+    rear car, to keep the distance (Lemma 2), and, turning in, the one that moved sideways into the other. A
+    car in the path all along is otherwise the follower's doubt; this one was never ahead of the ego."""
+    dxs = [r.get("dx") for r in rows]
+    if not dxs or any(dx is None or dx >= 0.0 for dx in dxs):
+        return False
+    return dxs[-1] - dxs[0] >= CLOSING_M
 
 
 def stood(rows: list[dict]) -> bool:

@@ -146,4 +146,5 @@ def test_worker_processes_give_the_same_report():
                 for n in (1, 2))
     for report in (one, two):
         report["adversary"]["training"][0].pop("seconds")
+    assert (one.pop("processes"), two.pop("processes")) == (1, 2) and one.pop("wall_s") >= 0 <= two.pop("wall_s")
     assert one == two and one["episodes"] == 8

@@ -46,18 +46,22 @@ def test_rss_equals_the_sound_front_safe_distance_on_the_papers_parameters():
 
 
 def test_stopping_distance_steps_matches_the_simulators_integration():
+    """Braking at 6 m/s² every step of the simulator's own integration (sim.dynamics.integrate_speed, exact
+    kinematics where a car stops within a step) covers v² / (2 · 6) to the stop."""
+    from highway_srl.sim.dynamics import integrate_speed
+
     def stepped(v, brake=6.0, dt=0.125):
-        d = 0.0
-        while v > 0:
-            nxt = max(v - brake * dt, 0.0)
-            d, v = d + 0.5 * (v + nxt) * dt, nxt
+        d, speed = 0.0, torch.tensor([[v]], dtype=torch.float64)
+        while float(speed) > 0:
+            speed, mean = integrate_speed(speed, torch.tensor([[-brake]], dtype=torch.float64), dt, 30.0)
+            d += float(mean) * dt
         return d
 
     assert stopping_distance_steps(0.75) == pytest.approx(0.046875)
-    assert stopping_distance_steps(10.0) == pytest.approx(8.34375)  # 13 full steps, then 0.25 m/s
+    assert stopping_distance_steps(10.0) == pytest.approx(100 / 12)  # 13 full steps, then 0.25 m/s to the stop
     assert stopping_distance_steps(0.0) == 0.0
-    for v in (0.1, 0.4, 3.3, 7.5, 9.99):
-        assert stopping_distance_steps(v) == pytest.approx(stepped(v), abs=1e-12)
+    for v in (0.1, 0.4, 0.44, 3.3, 7.5, 9.99, 10.0):
+        assert stopping_distance_steps(v) == pytest.approx(stepped(v), abs=1e-9)
 
 
 def row(dx, dy=0.0, v=8.0, v_sv=6.0, action="Idle", allowed=ALL, r1=True):
@@ -80,6 +84,24 @@ def test_a_car_coming_in_from_beside_or_behind_is_unavoidable_however_fast_it_is
             row(-2.2, dy=-3.12, v=0.44, v_sv=10.14, action="Faster"), row(-1.08, dy=-2.88, v=0.88, v_sv=9.39)]
     assert ego_avoidable("side", False, True, rows) == (False, SIDE_SWIPE)
     assert ego_avoidable("front", False, True, rows) == (False, CUT_IN)
+
+
+def test_a_car_that_drove_up_from_behind_in_the_path_all_along_is_unavoidable():
+    """The 10^6-episode sweep's two-lane A case: the ego stands 0.31 m off its lane's centre after an aborted
+    change (so a car centred in the next lane is 3.2 m aside, inside the path margin, all along) with Faster
+    allowed; a car of the next lane drives up from 9.6 to 4.0 m behind and turns into its side. Never ahead of
+    the ego, it is the rear car and the lateral mover: RSS's. A car standing beside while the ego creeps away
+    from it (the multi-lane F case: 1.8 -> 2.0 m behind, speed 0) did not drive up: doubt, avoidable."""
+    dx = [-9.6 + 0.24 * k for k in range(24)]
+    drove_up = [row(d, dy=3.2 if k < 20 else 3.0, v=0.0 if k < 18 else 0.4, v_sv=2.0, allowed=["Faster", "Idle"])
+                for k, d in enumerate(dx)]
+    assert ego_avoidable("side", False, True, drove_up) == (False, SIDE_SWIPE)
+    creeping_away = [row(-1.8 - 0.01 * k, dy=3.1, v=0.4 * (k % 2), v_sv=0.0, action="Faster", allowed=ALL)
+                     for k in range(24)]
+    assert ego_avoidable("side", False, True, creeping_away) == (True, SIDE_ROOM)
+    # ahead of the ego's centre at one decision, or closing by less than a metre: the follower's doubt again
+    assert ego_avoidable("side", False, True, [row(0.5, dy=3.2), *drove_up[1:]]) == (True, SIDE_ROOM)
+    assert ego_avoidable("side", False, True, drove_up[-4:]) == (True, SIDE_ROOM)
 
 
 def test_a_cut_in_with_room_to_brake_is_avoidable():

@@ -18,9 +18,23 @@ from highway_srl.experiments import falsify as fz
 from highway_srl.rules.avoidable import SIDE_SWIPE, STOOD, ego_avoidable
 
 CASES = sorted((Path(__file__).parent / "cases").glob("*.json"))
-# counterexamples the safe profile does not close yet, with what is missing: the greedy-ttc search over
-# every scene and levels A-F (256 episodes a cell and mode), uniform and greedy-ttc, found these
-OPEN: dict[str, str] = {}  # none at present
+# counterexamples the safe profile does not close yet, with what is missing: the 10^6-episode uniform sweep and
+# the 10^5-episode greedy-ttc sweep (docs/results/falsify-safe) found these
+SETTLING = ("a fast car from two lanes over, behind, cuts into the lane the slow ego is entering; the ego's lateral "
+            "controller carries it on toward that lane's centre, into the car; RSS asks both to stop moving sideways, "
+            "and the ego has no lateral brake (its control tracks a lane centre)")
+OPEN: dict[str, str] = {
+    **dict.fromkeys([f"safe-far-lane-cut-in-while-settling-{where}-adversarial.json"
+                     for where in ("multi-lane-A", "back-multi-lane-A", "merge-A", "exit-A")], SETTLING),
+    **dict.fromkeys([f"safe-greedy-far-lane-cut-in-while-settling-multi-lane-{level}-adversarial.json"
+                     for level in "BC"], SETTLING),
+    "safe-creeping-beside-a-car-standing-across-the-line-multi-lane-F-adversarial.json":
+        "the ego creeps on (Faster, at times LaneChange alone allowed) beside a car standing with its nose over the "
+        "line a metre behind its centre; its body, turning about its centre, swings into that nose",
+    "safe-greedy-straddling-the-gore-exit-C.json":
+        "nominal traffic: the ego's change toward the off-ramp lane neither finished nor was aborted back before "
+        "the gore (x2), where its body straddling the line met the barrier",
+}
 # safe-profile cases whose collision is not the ego's to avoid (rules.avoidable), with the verdict's reason:
 # the ego stood through the trace with no allowed move; the ego stood centred with a target lane it had not
 # moved toward while a car from the far lane behind it turned in (RSS: a car at standstill is not responsible);
@@ -31,6 +45,10 @@ UNAVOIDABLE = {
     "safe-standing-ego-side-cut-in-multi-lane-F-adversarial.json": (False, True, STOOD),
     "safe-greedy-standing-change-hit-from-the-side-merge-C-adversarial.json": (True, True, SIDE_SWIPE),
     "safe-greedy-cut-in-from-alongside-two-lane-D-adversarial.json": (False, True, SIDE_SWIPE),
+    # a car of the next lane drove up from 9-12 m behind a standing ego that sat 0.3 m off its lane's centre (in
+    # the path margin all along) and turned into its side: the rear car and the lateral mover (came_from_behind)
+    **dict.fromkeys([f"safe-drove-up-from-behind-beside-an-off-centre-ego-{where}-adversarial.json"
+                     for where in ("two-lane-A", "multi-lane-D")], (False, True, SIDE_SWIPE)),
     # braked to a stand with Slower alone, then stood 2 s while a car stopped alongside ahead turned across
     # its front corner: the last second decides
     "safe-greedy-braked-to-a-stand-then-cut-across-two-lane-D-adversarial.json": (False, True, STOOD),
