@@ -101,14 +101,25 @@ def change_fits_window(road: Road, ego_lane: torch.Tensor, target_lane: torch.Te
     """(B,) bool: a change from ego_lane to target_lane (global) ends before its change window closes.
 
     The control mapping (Eq. 34) only knows the current lane pair; the road's window (the merging zone's end,
-    the exit's gore) is a hard boundary an ego straddling the lanes would cross. The ego still has to cover
-    speed * change_time_s * (remaining lateral distance / lane width) metres: its centre must be inside the
-    window, both lanes present, that far (+ margin) ahead. See docs/paper-notes.md, "control mapping".
+    the exit's gore) is a hard boundary an ego straddling the lanes would cross. The change has the share
+    `remaining` of a lane width left, change_time_s * remaining seconds at the controller's pace; a held change
+    lets the ego take Faster at every step, so its centre may cover as much as accelerating at its limit
+    (to the speed limit) for that long: change_run_m. It must be inside the window, both lanes present, that
+    far (+ margin) ahead. Why not speed * time: from a standstill that is 0 m, and an ego that started a change
+    10 m before the gore at 0 m/s drove into it (docs/paper-notes.md, "control mapping").
     """
     w = road.lane_width_m
     remaining = ((target_lane.to(ego_y.dtype) * w - ego_y).abs() / w).clamp(max=1.0)
-    ahead = ego_x + speed * change_time_s * remaining + margin_m
+    ahead = ego_x + change_run_m(speed, change_time_s * remaining) + margin_m
     return crossing_allowed(road, ego_lane, target_lane, ahead)
+
+
+def change_run_m(speed: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """(B,) metres an ego at `speed` covers in `t` seconds accelerating at its limit until the speed limit."""
+    t_acc = ((V_MAX_MPS - speed) / EGO_ACCEL_MAX_MPS2).clamp(min=0.0)
+    t_acc = torch.minimum(t_acc, t)
+    return speed * t_acc + 0.5 * EGO_ACCEL_MAX_MPS2 * t_acc * t_acc + torch.maximum(speed, torch.full_like(
+        speed, V_MAX_MPS)) * (t - t_acc)
 
 
 def _base_lane(road: Road, ego_x: torch.Tensor, ego_lane: torch.Tensor) -> torch.Tensor:

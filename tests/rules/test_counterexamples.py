@@ -31,9 +31,13 @@ OPEN: dict[str, str] = {
     "safe-creeping-beside-a-car-standing-across-the-line-multi-lane-F-adversarial.json":
         "the ego creeps on (Faster, at times LaneChange alone allowed) beside a car standing with its nose over the "
         "line a metre behind its centre; its body, turning about its centre, swings into that nose",
-    "safe-greedy-straddling-the-gore-exit-C.json":
-        "nominal traffic: the ego's change toward the off-ramp lane neither finished nor was aborted back before "
-        "the gore (x2), where its body straddling the line met the barrier",
+}
+# safe-profile holes closed by making an addition stricter, where switching the addition off is no test (the
+# old rule is not selectable): what changed
+STRENGTHENED = {
+    # nominal exit C: a change begun standing 10.7 m before the gore, then accelerated through, aborted late
+    "safe-greedy-straddling-the-gore-exit-C.json": "finish_in_window counts the ego accelerating during the change "
+                                                   "(mappings.change_run_m), not its speed alone",
 }
 # safe-profile cases whose collision is not the ego's to avoid (rules.avoidable), with the verdict's reason:
 # the ego stood through the trace with no allowed move; the ego stood centred with a target lane it had not
@@ -85,7 +89,7 @@ def _params(paths):
 
 def test_the_suite_holds_every_kind_of_case():
     profiles = {fz.load_case(p).profile for p in CASES}
-    assert profiles == {"paper", "safe"} and set(OPEN) | set(CLOSED_BY) | set(UNAVOIDABLE) == {
+    assert profiles == {"paper", "safe"} and set(OPEN) | set(CLOSED_BY) | set(UNAVOIDABLE) | set(STRENGTHENED) == {
         p.name for p in CASES if fz.load_case(p).profile == "safe"}
 
 

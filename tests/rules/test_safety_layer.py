@@ -157,17 +157,20 @@ def test_a_lane_change_is_started_only_if_it_ends_before_the_window_closes(hand_
     keeps the lane unless the change can end in time (the remaining-distance scaling: the next test)."""
     road = make_road("exit")
     x1, x2 = road.zones["diverging"]
-    scenes = [{"ego": (x1 + 10.0, W, 8.0, 0.0), "svs": []},  # plenty of room: 8 m/s x 3 s = 24 m
+    # the change may run 3 s with Faster at every step: from 8 m/s, 0.57 s to the 10 m/s limit then 2.43 s at
+    # it, 29.4 m (+1); from 2 m/s 20.9 m (+1); from a standstill 15.7 m (+1), where speed x 3 s says 0
+    scenes = [{"ego": (x1 + 10.0, W, 8.0, 0.0), "svs": []},  # plenty of room
               {"ego": (x2 - 15.0, W, 8.0, 0.0), "svs": []},  # 15 m left: no
-              {"ego": (x2 - 15.0, W, 2.0, 0.0), "svs": []}]  # slowly: 6 m needed, yes
+              {"ego": (x2 - 25.0, W, 2.0, 0.0), "svs": []},  # slowly, 25 m left: yes
+              {"ego": (x2 - 15.0, W, 0.0, 0.0), "svs": []}]  # standing 15 m before the gore: no
     world = hand_world(road, scenes)
     layer = SafetyLayer(road, profile="safe")  # the safe profile's finish_in_window
     layer.observe(world)
-    lane, _ = layer.act(torch.tensor([LANE_CHANGE] * 3))
-    assert lane.tolist() == [2, 1, 2]
+    lane, _ = layer.act(torch.tensor([LANE_CHANGE] * 4))
+    assert lane.tolist() == [2, 1, 2, 1]
     literal = SafetyLayer(road, finish_in_window=False)
     literal.observe(world)
-    assert literal.act(torch.tensor([LANE_CHANGE] * 3))[0].tolist() == [2, 2, 2]
+    assert literal.act(torch.tensor([LANE_CHANGE] * 4))[0].tolist() == [2, 2, 2, 2]
 
 
 def test_change_fits_window_scales_with_the_lateral_distance_left():
@@ -175,11 +178,21 @@ def test_change_fits_window_scales_with_the_lateral_distance_left():
 
     road = make_road("merge")
     _, end = road.zones["merging"]
-    x = torch.full((4,), end - 10.0)
-    y = torch.tensor([2 * W, 2 * W, 1.5 * W, 1.5 * W])  # on the ramp; half-way across
-    speed = torch.tensor([5.0, 2.0, 5.0, 7.0])  # needs 15+1, 6+1, 7.5+1, 10.5+1 m
+    x = torch.full((4,), end - 13.0)
+    y = torch.tensor([2 * W, 1.5 * W, 1.5 * W, 1.5 * W])  # on the ramp; half-way across
+    speed = torch.tensor([0.0, 0.0, 5.0, 7.0])  # 3 s or 1.5 s of Faster: needs 15.7+1, 3.9+1, 11.4+1, 13.7+1 m
     fits = change_fits_window(road, torch.full((4,), 2), torch.full((4,), 1), x, y, speed)
     assert fits.tolist() == [False, True, True, False]
+
+
+def test_change_run_golden_values():
+    """change_run_m: accelerating at 3.5 m/s² to the 10 m/s limit, then at it (by hand)."""
+    from highway_srl.rules.mappings import change_run_m
+
+    run = change_run_m(torch.tensor([0.0, 8.0, 10.0, 2.0]), torch.tensor([3.0, 3.0, 3.0, 1.0]))
+    t0 = 10 / 3.5  # from a standstill the limit comes after 2.857 s
+    assert run.tolist() == pytest.approx([0.5 * 3.5 * t0 ** 2 + 10 * (3 - t0), 8 * (2 / 3.5) + 0.5 * 3.5 * (2 / 3.5) ** 2
+                                          + 10 * (3 - 2 / 3.5), 30.0, 2 + 0.5 * 3.5], abs=1e-5)
 
 
 
