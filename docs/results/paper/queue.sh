@@ -1,0 +1,21 @@
+#!/bin/bash
+# The campaign's queue as this folder's chunks were made: resumable `reproduce` calls, one thread per job,
+# from a worktree pinned at the chunks' commit (1d3a74e). Usage, from a checkout of this repository:
+#   git worktree add --detach ../campaign 1d3a74e && (cd ../campaign && make setup)
+#   CAMPAIGN=../campaign OUT=../campaign-out setsid nohup bash docs/results/paper/queue.sh > queue.log 2>&1 &
+#   echo 19 > /proc/PID/autogroup   # keep it behind interactive work (README.md here)
+# then copy the records back with docs/results/paper/sync.sh and rebuild the report (README.md here).
+# Each call finishes within a work period of about three hours on two free cores; the order is README.md's.
+set -u
+CAMPAIGN=${CAMPAIGN:-../campaign}
+OUT=$(realpath -m "${OUT:-../campaign-out}")
+cd "$CAMPAIGN" || exit 1
+run() {  # chunk seeds methods scenes
+  OMP_NUM_THREADS=1 nice -n 19 .venv/bin/python -m highway_srl.cli reproduce --budget paper --profiles paper \
+    --seeds "$2" --jobs 2 --out "$OUT/$1" --methods "$3" --scenes "$4"
+  echo "$(date -Is) done: $*"
+}
+run seeds-0-1 0,1 moe-rm-srl exit,adv-merge
+run seeds-2 2 moe-rm-srl two-lane,merge
+run seeds-2 2 moe-rm-srl exit,adv-merge
+run seeds-0-1 0,1 moe-rm-srl adv-exit,multi-lane
