@@ -171,6 +171,7 @@ class SafetyLayer:
         watch_third_lane: bool | None = None,
         ego_body_straddles: bool | None = None,
         lanes_by_body: bool | None = None,
+        back_out_of_entry: bool | None = None,
         reaction_s: float = DT_S,
         ego_brake_mps2: float = EGO_BRAKE_MAX_MPS2,
         sv_brake_mps2: float = SV_BRAKE_MAX_MPS2,
@@ -195,6 +196,7 @@ class SafetyLayer:
         self.watch_third_lane = pick(watch_third_lane, prof.watch_third_lane)
         self.ego_body_straddles = pick(ego_body_straddles, prof.ego_body_straddles)
         self.lanes_by_body = pick(lanes_by_body, prof.lanes_by_body)
+        self.back_out_of_entry = pick(back_out_of_entry, prof.back_out_of_entry)
         self.reaction_s, self.ego_brake, self.sv_brake = reaction_s, ego_brake_mps2, sv_brake_mps2
         self.rm = highway_reward_machine()
         self.target_lane: torch.Tensor | None = None  # (B,) long global T*; -1: not yet known
@@ -392,6 +394,14 @@ class SafetyLayer:
                 # Slower fall back to the literal Eq. 34 (T* = C_ID) and the change is aborted
                 still_safe = m.r_star[:, 1] & m.r_star[:, 3]
                 previous = torch.where(still_safe, previous, m.lanes.c_id.long())
+            if self.back_out_of_entry:
+                # ours: the centre has crossed, the body not yet: the lane being entered turning unsafe (a car
+                # turning into it) sends the ego back where it came from, if that lane is safe; settling on
+                # toward the lane's centre met the car (RSS: stop moving sideways toward it)
+                w = self.road.lane_width_m
+                body = m.m_l_ego | crosses_line(snap.ego_y - m.lanes.base_lane * w, snap.ego_heading, w)
+                entering = body & (previous == m.lanes.c_id) & ~(m.r_star[:, 0] & m.r_star[:, 2])
+                previous = torch.where(entering & m.r_star[:, 1] & m.r_star[:, 3], 1 - m.lanes.c_id, previous)
         t_local = target_lane_local(
             action, m.lanes.c_id, m.m_l_ego, m.r_star[:, 2], m.r_star[:, 3], dx3, dx4, previous_target=previous,
             check=not self.static,

@@ -24,8 +24,10 @@ class ControlProfile:
     beyond the line while its body crosses it is near it (mappings.reaching_over); watch_third_lane: cars of
     the lane the model does not hold join the rules of the lane they reach into (rules.third_lane);
     ego_body_straddles: the straddle grouping also holds while the ego's body crosses the line; lanes_by_body:
-    the nearest cars whose bodies reach into the pair's lanes join those lanes' rules (rules.lanes_by_body). docs/
-    paper-notes.md, "Profiles: paper vs safe", gives each with the crash that motivated it.
+    the nearest cars whose bodies reach into the pair's lanes join those lanes' rules (rules.lanes_by_body);
+    back_out_of_entry: an ego whose body still crosses the line into the lane it is entering goes back to the
+    lane it came from when the one it enters turns unsafe and that one is safe. docs/paper-notes.md, "Profiles:
+    paper vs safe", gives each with the crash that motivated it.
     """
 
     abort_unsafe_change: bool
@@ -39,13 +41,14 @@ class ControlProfile:
     watch_third_lane: bool
     ego_body_straddles: bool
     lanes_by_body: bool
+    back_out_of_entry: bool
 
 
 # paper: Eqs. 31-35 as printed plus only the readings they cannot work without (holding a change under way);
 # safe: the project's additions on top, each justified by a measured crash.
 PROFILES: dict[str, ControlProfile] = {
-    "paper": ControlProfile(False, False, False, False, 0.0, False, False, False, False, False, False),
-    "safe": ControlProfile(True, True, True, True, STANDSTILL_GAP_M, True, True, True, True, True, True),
+    "paper": ControlProfile(False, False, False, False, 0.0, False, False, False, False, False, False, False),
+    "safe": ControlProfile(True, True, True, True, STANDSTILL_GAP_M, True, True, True, True, True, True, True),
 }
 
 

@@ -23,15 +23,10 @@ CASES = sorted((Path(__file__).parent / "cases").glob("*.json"))
 SETTLING = ("a fast car from two lanes over, behind, cuts into the lane the slow ego is entering; the ego's lateral "
             "controller carries it on toward that lane's centre, into the car; RSS asks both to stop moving sideways, "
             "and the ego has no lateral brake (its control tracks a lane centre)")
-OPEN: dict[str, str] = {
-    **dict.fromkeys([f"safe-far-lane-cut-in-while-settling-{where}-adversarial.json"
-                     for where in ("multi-lane-A", "back-multi-lane-A", "merge-A", "exit-A")], SETTLING),
-    **dict.fromkeys([f"safe-greedy-far-lane-cut-in-while-settling-multi-lane-{level}-adversarial.json"
-                     for level in "BC"], SETTLING),
-    "safe-creeping-beside-a-car-standing-across-the-line-multi-lane-F-adversarial.json":
-        "the ego creeps on (Faster, at times LaneChange alone allowed) beside a car standing with its nose over the "
-        "line a metre behind its centre; its body, turning about its centre, swings into that nose",
-}
+# (back_out_of_entry closes the others of the pattern: the body still over the line, the ego goes back; these
+# three had their body inside the new lane already, moving on toward its centre at 1-2 m/s)
+OPEN: dict[str, str] = dict.fromkeys([f"safe-far-lane-cut-in-while-settling-{where}-adversarial.json"
+                                      for where in ("multi-lane-A", "back-multi-lane-A", "exit-A")], SETTLING)
 # safe-profile holes closed by making an addition stricter, where switching the addition off is no test (the
 # old rule is not selectable): what changed
 STRENGTHENED = {
@@ -79,6 +74,14 @@ CLOSED_BY = {
     # own lane: no slot held it until the lanes were also asked by body
     **dict.fromkeys([f"safe-greedy-across-the-line-behind-the-nearest-{where}.json"
                      for where in ("multi-lane-D", "merge-B", "exit-E")], NOT_BY_BODY),
+    # the ego's centre in the lane it was entering, its body still over the line, when a car from two lanes over
+    # turned into that lane; and an ego creeping on beside a car standing across the line, whose body, turning
+    # about its centre, swung into that car's nose: going back to the lane it came from answers both
+    **dict.fromkeys(["safe-far-lane-cut-in-while-settling-merge-A-adversarial.json",
+                     "safe-greedy-far-lane-cut-in-while-settling-multi-lane-B-adversarial.json",
+                     "safe-greedy-far-lane-cut-in-while-settling-multi-lane-C-adversarial.json",
+                     "safe-creeping-beside-a-car-standing-across-the-line-multi-lane-F-adversarial.json"],
+                    {"back_out_of_entry": False}),
 }
 
 

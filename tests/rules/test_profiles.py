@@ -1,7 +1,7 @@
 """Control profiles of the SafetyLayer (docs/paper-notes.md, "Profiles: paper vs safe").
 
 `paper` = Eqs. 31-35 as printed plus the hold of a lane change under way; `safe` = today's behaviour with
-our eleven additions. One crafted situation per addition where the two profiles differ exactly as documented,
+our twelve additions. One crafted situation per addition where the two profiles differ exactly as documented,
 and a golden test of Eqs. 31-35 under `paper`.
 """
 
@@ -30,10 +30,11 @@ def test_the_default_profile_is_every_entry_points_and_each_profile_sets_its_add
     layer = SafetyLayer(make_road("two-lane"), profile="safe")
     options = lambda lay: (lay.abort_unsafe_change, lay.brake_while_changing, lay.finish_in_window,  # noqa: E731
                            lay.straddle_grouping, lay.standstill_gap_m, lay.turning_in_is_near, lay.last_resort_stops,
-                           lay.reaching_over_is_near, lay.watch_third_lane, lay.ego_body_straddles, lay.lanes_by_body)
-    assert options(layer) == (True, True, True, True, 1.0, True, True, True, True, True, True)
+                           lay.reaching_over_is_near, lay.watch_third_lane, lay.ego_body_straddles, lay.lanes_by_body,
+                           lay.back_out_of_entry)
+    assert options(layer) == (True, True, True, True, 1.0, True, True, True, True, True, True, True)
     paper = SafetyLayer(make_road("two-lane"), profile="paper")
-    assert options(paper) == (False, False, False, False, 0.0, False, False, False, False, False, False)
+    assert options(paper) == (False, False, False, False, 0.0, False, False, False, False, False, False, False)
     assert paper.hold_lane_change and layer.hold_lane_change  # both hold a change under way
     assert set(PROFILES) == {"paper", "safe"}
 
@@ -71,6 +72,24 @@ def test_held_change_is_aborted_when_the_target_turns_unsafe_only_under_safe(han
         step = layer.observe(world)
         assert step.primary.r_star[0, 3].item() is False
         assert layer.act(torch.tensor([IDLE]))[0].tolist() == [expected], name
+
+
+def test_an_ego_entering_a_lane_that_turns_unsafe_backs_out_only_under_safe(hand_world):
+    """back_out_of_entry: LaneChange from lane 0 to 1; the ego's centre has crossed the line (y 2.0), its body
+    not yet (its lower edge at 1.0 m); a car turns up 1 m behind its rear bumper in lane 1 at 12 m/s (R3 = 0)
+    while lane 0 stays empty. Idle holds the change under paper and takes the ego back to lane 0 under safe;
+    centred in lane 1 (y 3.5) the same car changes nothing: the ego has entered, and R*3 is Slower's matter."""
+    road = make_road("two-lane")
+    for name, expected in (("paper", [1, 1]), ("safe", [0, 1])):
+        world = hand_world(road, [{"ego": (0.0, 0.0, 8.0, 0.0), "svs": []}, {"ego": (0.0, 0.0, 8.0, 0.0), "svs": []}])
+        layer = SafetyLayer(road, profile=name)
+        layer.observe(world)
+        assert layer.act(torch.tensor([LANE_CHANGE] * 2))[0].tolist() == [1, 1]
+        world.scenes[0].update(ego=(2.0, 2.0, 8.0, 0.1), svs=[(-4.0, W, 12.0, 0.0)])
+        world.scenes[1].update(ego=(2.0, W, 8.0, 0.0), svs=[(-4.0, W, 12.0, 0.0)])
+        step = layer.observe(world)
+        assert step.primary.r_star[:, 2].tolist() == [False, False] and step.primary.lanes.c_id.tolist() == [1, 1]
+        assert layer.act(torch.tensor([IDLE] * 2))[0].tolist() == expected, name
 
 
 def test_lane_change_behind_an_unsafe_leader_brakes_only_under_safe(hand_world):
