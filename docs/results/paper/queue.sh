@@ -8,10 +8,11 @@
 # Each call finishes within a work period of about three hours on two free cores; the order is README.md's.
 set -u
 CAMPAIGN=${CAMPAIGN:-../campaign}
+PROFILES=${PROFILES:-paper}  # safe: the chunks beyond the paper, from a worktree with today's safe profile
 OUT=$(realpath -m "${OUT:-../campaign-out}")
 cd "$CAMPAIGN" || exit 1
 run() {  # chunk seeds methods scenes
-  OMP_NUM_THREADS=1 nice -n 19 .venv/bin/python -m highway_srl.cli reproduce --budget paper --profiles paper \
+  OMP_NUM_THREADS=1 nice -n 19 .venv/bin/python -m highway_srl.cli reproduce --budget paper --profiles "$PROFILES" \
     --seeds "$2" --jobs 2 --out "$OUT/$1" --methods "$3" --scenes "$4"
   echo "$(date -Is) done: $*"
 }
@@ -19,3 +20,5 @@ run seeds-0-1 0,1 moe-rm-srl exit,adv-merge
 run seeds-2 2 moe-rm-srl two-lane,merge
 run seeds-2 2 moe-rm-srl exit,adv-merge
 run seeds-0-1 0,1 moe-rm-srl adv-exit,multi-lane
+# next, under the safe profile (PROFILES=safe CAMPAIGN=../campaign-safe, a worktree at be654c2 or later):
+#   run safe-seeds-0-1 0,1 moe-rm-srl two-lane,merge   and on through every scene, then sr-rl,mp-rl

@@ -5,7 +5,8 @@ set -u
 OUT=$(realpath -m "${OUT:-../campaign-out}")
 HERE=$(realpath "$(dirname "$0")")
 cd "$OUT" || exit 1
-for c in seeds-*; do
+for c in */; do
+  c=${c%/}
   [ -f "$c/study.json" ] || continue
   mkdir -p "$HERE/$c"
   cp "$c/study.json" "$HERE/$c/"
