@@ -2,6 +2,7 @@
 
     python scripts/device_check.py                 # on a CUDA machine, under 8 minutes on an H100
     python scripts/device_check.py --cpu-smoke     # the same parts at toy sizes on the CPU (the test suite runs it)
+    python scripts/device_check.py --only sim-,train-moe-rm-srl-10-seeds-compiled   # the parts whose names start so
 
 Parts, in order: the GPU tests; the simulator eager at 4,096 / 65,536 / 262,144 envs (two-lane C) and
 level F, merge, adversarial exit at 65,536; training MoE-RM-SRL at 1 and 10 seeds (16 envs each) at
@@ -23,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -47,7 +49,8 @@ def plan(smoke: bool) -> list[dict]:
             for how in ("eager", "compiled"):
                 for seeds in (1, 10):
                     # compiled: the split step (the step, one round per call, the tail: compile_vector_step)
-                    parts.append({"name": train_part(seeds, how), "cap_s": 90 if how == "eager" else 240,
+                    # compiled: 172 s (1 seed) and 243 s (10 seeds) of compiling on an H200, cold cache
+                    parts.append({"name": train_part(seeds, how), "cap_s": 90 if how == "eager" else 300,
                                   "args": ["--part", "train", "--seeds", str(seeds), "--steps", "1" if smoke else "40"]
                                   + ["--compiled"] * (how == "compiled")})
         for sc, tr, adv, envs in sizes:
@@ -66,17 +69,30 @@ def plan(smoke: bool) -> list[dict]:
     return parts
 
 
+def select(parts: list[dict], only: str) -> list[dict]:
+    """The parts whose names start with one of the comma-separated prefixes (all when none is given)."""
+    prefixes = [p.strip() for p in only.split(",") if p.strip()]
+    chosen = [part for part in parts if not prefixes or part["name"].startswith(tuple(prefixes))]
+    if not chosen:
+        raise SystemExit(f"device_check: --only {only!r} names no part; the parts: "
+                         + ", ".join(part["name"] for part in parts))
+    return chosen
+
+
 def run_part(args) -> dict:
     """One part, in this process; returns its figures."""
     device = "cpu" if args.cpu_smoke else "cuda"
     if args.part == "tests":
         tests = ["tests/sim/test_gpu.py", "tests/agents/test_gpu_update.py", "tests/sim/test_compile.py"]
-        cmd = [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", *tests]
+        # no -q: pyproject's addopts has one, and -qq prints no counts line when all pass
+        cmd = [sys.executable, "-m", "pytest", "-x", "-p", "no:cacheprovider", *tests]
         if args.cpu_smoke:
             # a token run of the machinery: one of the cheapest tests there (the graph checks trace for seconds)
             cmd += ["-k", "static_step_is_bit_identical and two-lane-None"]
         done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
-        tail = done.stdout.strip().splitlines()[-1:] or [done.stderr.strip()[-300:]]
+        # the counts line ("N passed, M warnings in S s"), not the last line: a warnings summary can end the output
+        counts = [line for line in done.stdout.splitlines() if re.search(r"\d+ (passed|failed|error)", line)]
+        tail = counts[-1:] or done.stdout.strip().splitlines()[-1:] or [done.stderr.strip()[-300:]]
         return {"returncode": done.returncode, "summary": tail[0]}
     if args.part == "sim":
         from highway_srl.experiments.bench import bench_sim
@@ -150,6 +166,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", default=None, help="JSON path (default: $OUT/device_check.json, else ./device_check.json)")
     p.add_argument("--cpu-smoke", action="store_true", help="toy sizes on the CPU: checks the script, not a device")
     p.add_argument("--budget-s", type=float, default=450.0, help="wall-clock budget of all parts together")
+    p.add_argument("--only", default="", help="comma-separated name prefixes: run only the parts whose names start "
+                   "with one (a later lease measures what an earlier one left; the names are the JSON's keys)")
     p.add_argument("--part", help=argparse.SUPPRESS)
     p.add_argument("--part-out", help=argparse.SUPPRESS)
     for name in ("--scenario", "--traffic"):
@@ -181,7 +199,7 @@ def main(argv: list[str] | None = None) -> int:
               "commit": _commit(), "parts": {}}
     env = {**os.environ, "PYTHONPATH": f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
     with tempfile.TemporaryDirectory() as tmp:
-        for part in plan(args.cpu_smoke):
+        for part in select(plan(args.cpu_smoke), args.only):
             left = args.budget_s - (time.perf_counter() - start)
             limit = min(part["cap_s"], left)
             if limit < 10:

@@ -2,16 +2,21 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 
 BLOCK_GYMNASIUM = """
 import sys
+
+import pytest
 class Block:
     def find_spec(self, name, path=None, target=None):
         if name == "gymnasium" or name.startswith("gymnasium."):
@@ -51,3 +56,17 @@ def test_device_check_without_a_gpu_runs_the_cpu_smoke_and_writes_every_part_and
     projected = report["projections"]
     assert projected["study_h"] > 0 and projected["eager"]["study_h"] > 0 and projected["compiled"]["study_h"] > 0
     assert report["parts"]["gpu-tests"]["result"]["returncode"] == 0
+    assert "passed" in report["parts"]["gpu-tests"]["result"]["summary"]
+
+
+def test_only_keeps_the_parts_named_by_prefix_and_names_the_parts_when_none_matches():
+    spec = importlib.util.spec_from_file_location("device_check", ROOT / "scripts" / "device_check.py")
+    check = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(check)
+    parts = check.plan(smoke=False)
+    assert check.select(parts, "") == parts
+    only = "sim-two-lane-C-65536-compiled, train-moe-rm-srl-10-seeds-compiled"
+    chosen = [p["name"] for p in check.select(parts, only)]
+    assert chosen == ["train-moe-rm-srl-10-seeds-compiled", "sim-two-lane-C-65536-compiled"]
+    with pytest.raises(SystemExit, match="names no part; the parts: gpu-tests"):
+        check.select(parts, "nothing-")
