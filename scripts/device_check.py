@@ -1,13 +1,14 @@
 """The device check: one call that tests and benches the GPU and writes one JSON file.
 
-    python scripts/device_check.py                 # on a CUDA machine, under 8 minutes on an H100
+    python scripts/device_check.py                 # on a CUDA machine: about 20 minutes on an H200, two leases
     python scripts/device_check.py --cpu-smoke     # the same parts at toy sizes on the CPU (the test suite runs it)
     python scripts/device_check.py --only sim-,train-moe-rm-srl-10-seeds-compiled   # the parts whose names start so
 
 Parts, in order: the GPU tests; the simulator eager at 4,096 / 65,536 / 262,144 envs (two-lane C) and
 level F, merge, adversarial exit at 65,536; training MoE-RM-SRL at 1 and 10 seeds (16 envs each) at
 Algorithm 1's update rate (one gradient step per env step), eager (the static, sync-free step: the CUDA
-default) and compiled (CUDA graphs, the split step: docs/benchmarks.md); the simulator compiled, same sizes;
+default) and compiled (CUDA graphs, the split step: docs/benchmarks.md), and 4 and 8 eager 10-seed jobs side
+by side (the study's jobs sharing the GPU); the simulator compiled, same sizes;
 the host's CPU cores: one world of 65,536 envs in a process per core (World(processes=P)) against one
 process of all threads; last, if the budget is left, 1 seed compiled with the update rounds unrolled into
 one graph. Each part runs in its own process with a time limit from the overall budget, so a failure, a
@@ -25,6 +26,7 @@ import argparse
 import json
 import os
 import re
+import signal
 import subprocess
 import sys
 import tempfile
@@ -37,6 +39,7 @@ STUDY_JOBS, STUDY_SEEDS = 43, 10
 SIM_SIZES = [("two-lane", "C", False, 4096), ("two-lane", "C", False, 65_536), ("two-lane", "C", False, 262_144),
              ("two-lane", "F", False, 65_536), ("merge", "C", False, 65_536), ("exit", "C", True, 65_536)]
 TRAIN_ENVS = 16
+COPIES = (4, 8)  # training processes side by side on the GPU
 
 
 def plan(smoke: bool) -> list[dict]:
@@ -53,6 +56,11 @@ def plan(smoke: bool) -> list[dict]:
                     parts.append({"name": train_part(seeds, how), "cap_s": 90 if how == "eager" else 300,
                                   "args": ["--part", "train", "--seeds", str(seeds), "--steps", "1" if smoke else "40"]
                                   + ["--compiled"] * (how == "compiled")})
+                if how == "eager":  # jobs side by side on one GPU (reproduce --device cuda --jobs N): does it scale?
+                    for copies in (2,) if smoke else COPIES:
+                        parts.append({"name": f"{train_part(STUDY_SEEDS, how)}-x{copies}", "cap_s": 120,
+                                      "args": ["--part", "train-copies", "--copies", str(copies), "--seeds",
+                                               str(STUDY_SEEDS), "--steps", "1" if smoke else "150"]})
         for sc, tr, adv, envs in sizes:
             name = f"sim-{sc}-{tr}{'-adv' if adv else ''}-{envs}-{'compiled' if compiled else 'eager'}"
             args = ["--part", "sim", "--scenario", sc, "--traffic", tr, "--envs", str(envs), "--steps", steps]
@@ -104,6 +112,8 @@ def run_part(args) -> dict:
         return bench_cpu_processes(args.envs, args.steps, args.cpu_smoke)
     if args.part == "train":
         return bench_training(args.seeds, args.steps, device, args.cpu_smoke, args.compiled, args.unrolled)
+    if args.part == "train-copies":
+        return bench_training_copies(args.copies, args.seeds, args.steps, args.cpu_smoke)
     raise ValueError(f"unknown part {args.part!r}")
 
 
@@ -117,6 +127,24 @@ def bench_cpu_processes(envs: int, steps: int, smoke: bool) -> dict:
     return {"envs": envs, "processes": cores, "one_process_env_steps_per_s": one["env_steps_per_s"],
             "one_process_threads": one["machine"]["threads"], "processes_env_steps_per_s": many["env_steps_per_s"],
             "over_one_process": round(many["env_steps_per_s"] / one["env_steps_per_s"], 3), "machine": one["machine"]}
+
+
+def bench_training_copies(copies: int, seeds: int, steps: int, smoke: bool) -> dict:
+    """`copies` eager training processes started together, each as the "train" part: their rates while all run.
+    aggregate: the sum of the copies' rates; conservative: copies x the slowest (the timed windows overlap only
+    roughly: each starts after its own set-up)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        outs = [Path(tmp) / f"copy-{i}.json" for i in range(copies)]
+        cmd = [sys.executable, __file__, "--part", "train", "--seeds", str(seeds), "--steps", str(steps)]
+        procs = [subprocess.Popen(cmd + ["--part-out", str(out)] + ["--cpu-smoke"] * smoke, cwd=ROOT,
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True) for out in outs]
+        errors = [proc.communicate()[1] for proc in procs]
+        if any(proc.returncode for proc in procs):
+            raise RuntimeError("a copy failed: " + next(e for p, e in zip(procs, errors) if p.returncode)[-800:])
+        rates = [json.loads(out.read_text())["env_steps_per_s"] for out in outs]
+    return {"copies": copies, "seeds": seeds, "envs": TRAIN_ENVS, "vector_steps": steps, "env_steps_per_s": rates,
+            "aggregate_env_steps_per_s": round(sum(rates), 1),
+            "conservative_env_steps_per_s": round(copies * min(rates), 1)}
 
 
 def train_part(seeds: int, how: str) -> str:
@@ -158,6 +186,10 @@ def projections(results: dict) -> dict:
             if f[key] is not None and (best.get(key) is None or f[key] < best[key]):
                 best[key] = f[key]
     out.update({key: best.get(key) for key in ("paper_run_min", "ten_seeds_min", "study_h")})
+    for copies in COPIES:  # the study with `copies` jobs side by side, eager, at the conservative rate
+        rate_n = results.get(f"{train_part(STUDY_SEEDS, 'eager')}-x{copies}", {}).get("result", {})
+        rate_n = rate_n.get("conservative_env_steps_per_s")
+        out[f"eager_x{copies}_study_h"] = round(STUDY_JOBS * STUDY_SEEDS * PAPER_STEPS / rate_n / 3600, 2) if rate_n else None
     return out
 
 
@@ -172,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--part-out", help=argparse.SUPPRESS)
     for name in ("--scenario", "--traffic"):
         p.add_argument(name, help=argparse.SUPPRESS)
-    for name in ("--envs", "--steps", "--seeds"):
+    for name in ("--envs", "--steps", "--seeds", "--copies"):
         p.add_argument(name, type=int, help=argparse.SUPPRESS)
     p.add_argument("--adversarial", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--compiled", action="store_true", help=argparse.SUPPRESS)
@@ -209,14 +241,19 @@ def main(argv: list[str] | None = None) -> int:
             cmd = [sys.executable, __file__, *part["args"], "--part-out", str(part_out)]
             cmd += ["--cpu-smoke"] * args.cpu_smoke
             t0 = time.perf_counter()
+            # its own process group: a part that times out goes with whatever it started (train-copies' copies)
+            proc = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                    start_new_session=True)
             try:
-                done = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=limit)
-                entry = {"status": "ok" if done.returncode == 0 else "failed"}
-                if done.returncode == 0:
+                _, stderr = proc.communicate(timeout=limit)
+                entry = {"status": "ok" if proc.returncode == 0 else "failed"}
+                if proc.returncode == 0:
                     entry["result"] = json.loads(part_out.read_text())
                 else:
-                    entry["error"] = done.stderr.strip()[-1500:]
+                    entry["error"] = stderr.strip()[-1500:]
             except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.communicate()
                 entry = {"status": "timeout", "limit_s": round(limit, 1)}
             except Exception as err:  # noqa: BLE001 (one failure must still leave the JSON)
                 entry = {"status": "failed", "error": f"{type(err).__name__}: {err}"}

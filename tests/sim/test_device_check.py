@@ -51,6 +51,9 @@ def test_device_check_without_a_gpu_runs_the_cpu_smoke_and_writes_every_part_and
     trains = {f"train-moe-rm-srl-{n}-seeds{how}" for n in (1, 10) for how in ("", "-compiled")}
     assert {"gpu-tests", *trains} <= set(statuses)
     assert any(name.startswith("sim-") and name.endswith("-compiled") for name in statuses)
+    copies = report["parts"]["train-moe-rm-srl-10-seeds-x2"]["result"]
+    assert copies["copies"] == 2 and len(copies["env_steps_per_s"]) == 2
+    assert copies["aggregate_env_steps_per_s"] >= copies["conservative_env_steps_per_s"] > 0
     cpu = report["parts"]["sim-two-lane-C-4-cpu-processes"]["result"]
     assert cpu["processes"] == 2 and cpu["processes_env_steps_per_s"] > 0 and cpu["over_one_process"] > 0
     projected = report["projections"]
