@@ -18,15 +18,25 @@ from highway_srl.experiments import falsify as fz
 from highway_srl.rules.avoidable import SIDE_SWIPE, STOOD, ego_avoidable
 
 CASES = sorted((Path(__file__).parent / "cases").glob("*.json"))
-# counterexamples the safe profile does not close yet, with what is missing: the 10^6-episode uniform sweep and
-# the 10^5-episode greedy-ttc sweep (docs/results/falsify-safe) found these
-SETTLING = ("a fast car from two lanes over, behind, cuts into the lane the slow ego is entering; the ego's lateral "
-            "controller carries it on toward that lane's centre, into the car; RSS asks both to stop moving sideways, "
-            "and the ego has no lateral brake (its control tracks a lane centre)")
-# (back_out_of_entry closes the others of the pattern: the body still over the line, the ego goes back; these
-# three had their body inside the new lane already, moving on toward its centre at 1-2 m/s)
-OPEN: dict[str, str] = dict.fromkeys([f"safe-far-lane-cut-in-while-settling-{where}-adversarial.json"
-                                      for where in ("multi-lane-A", "back-multi-lane-A", "exit-A")], SETTLING)
+# counterexamples the safe profile does not close yet (found by the 10^6-episode uniform sweep,
+# docs/results/falsify-safe), with what each misses, traced step by step (body corners from rules.mappings.corner_points): a slow ego (1-2 m/s,
+# where the heading limit opens to 0.6 rad) changing lanes while a car from two lanes over cuts in beside it.
+# The common missing piece is a lateral hold: the ego's controller can only track a lane centre, where RSS's
+# proper response is to stop moving sideways (heading back to 0, staying where it is).
+OPEN: dict[str, str] = {
+    "safe-far-lane-cut-in-while-settling-multi-lane-A-adversarial.json":
+        "back_out_of_entry reverses the change (heading +0.33 to -0.44 rad at 2.3 m/s); the centre moves 0.5 m "
+        "away from the car that stopped beside it, but the rear corner swings 1.6 m toward it, into its nose: "
+        "bodies turn about their centre in the simulator (about the rear axle the swing would be ~0.6 m)",
+    "safe-far-lane-cut-in-while-settling-back-multi-lane-A-adversarial.json":
+        "the ego's change to the far lane given up (back to the lane its centre is in) while a car from two "
+        "lanes over turns into that lane level with it (dx 0.2-0.7 m, 1.5 m/s sideways); the ego brakes to a "
+        "stand, its body still 0.9 m over the line to the far lane, and is hit in the side",
+    "safe-far-lane-cut-in-while-settling-exit-A-adversarial.json":
+        "entering at 1.1 m/s with the heading at 0.50-0.57 rad, the ego's front corner reaches 2.1 m past its "
+        "centre into the lane, into a car cutting in from two lanes over at dx -0.9 m; turning the heading "
+        "back to 0 would pull the corner back ~1.2 m",
+}
 # safe-profile holes closed by making an addition stricter, where switching the addition off is no test (the
 # old rule is not selectable): what changed
 STRENGTHENED = {
