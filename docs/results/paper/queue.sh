@@ -16,9 +16,10 @@ run() {  # chunk seeds methods scenes
     --seeds "$2" --jobs 2 --out "$OUT/$1" --methods "$3" --scenes "$4"
   echo "$(date -Is) done: $*"
 }
-run seeds-0-1 0,1 moe-rm-srl exit,adv-merge
+# done: seeds-0-1 two-lane,merge; seeds-0-1 exit,adv-merge (tables/progress.md says what is finished)
 run seeds-2 2 moe-rm-srl two-lane,merge
 run seeds-2 2 moe-rm-srl exit,adv-merge
 run seeds-0-1 0,1 moe-rm-srl adv-exit,multi-lane
+run seeds-0-1 0,1 moe-rm-srl adv-two-lane,adv-multi-lane
 # next, under the safe profile (PROFILES=safe CAMPAIGN=../campaign-safe, a worktree at be654c2 or later):
 #   run safe-seeds-0-1 0,1 moe-rm-srl two-lane,merge   and on through every scene, then sr-rl,mp-rl
