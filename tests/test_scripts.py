@@ -79,3 +79,20 @@ def test_scripts_too_long_for_the_suite_show_their_help(script):
         pytest.importorskip("sb3_contrib")
     out = _run(f"scripts/{script}", "--help").stdout
     assert out.startswith("usage:") and script in out
+
+
+def test_episode_ends_accounts_for_every_episode_and_refuses_a_folder_that_is_no_run(tmp_path):
+    from highway_srl.cli import main
+
+    run = tmp_path / "run"
+    assert main(["train", "--scenario", "exit", "--traffic", "A", "--envs", "4", "--steps", "64",
+                 "--learning-starts", "32", "--quiet", "--out", str(run)]) == 0
+    out = json.loads(_run("scripts/episode_ends.py", str(run), "--episodes", "3").stdout)
+    assert out["scenario"] == "exit" and out["episodes"] == 3
+    assert out["success"] + out["collision"] + out["other_terminal"] + out["out_of_time"] == 3
+    assert sum(out["out_of_time_by_lane"].values()) == out["out_of_time"]
+    assert len(out["out_of_time_x_m_p10_p50_p90"]) == (3 if out["out_of_time"] else 0)
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
+    done = subprocess.run([sys.executable, "scripts/episode_ends.py", str(tmp_path)], env=env, cwd=ROOT,
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2 and done.stderr.strip().splitlines()[-1].startswith("episode_ends.py: error:")
