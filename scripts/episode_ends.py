@@ -1,5 +1,6 @@
 """Where a trained run's deployment episodes end: success, collision, another terminal failure, or out of
-time, and for the episodes that ran out of time, how far the ego got and in which lane.
+time, and for the episodes that ran out of time, how far the ego got, in which lane, at what speed and
+whether a car was ahead of it in its lane.
 
     python scripts/episode_ends.py RUN [--traffic C] [--episodes 50] [--seed 0]
 
@@ -31,24 +32,31 @@ def episode_ends(run: str, traffic: str, episodes: int, seed: int) -> dict:
     cfg, seeds = policy.config, len(policy.config.seeds)
     world = World(cfg.scenario, traffic, False, episodes * seeds, "cpu", evaluation_seeds(seeds, episodes, seed),
                   adversary=cfg.adversary)
-    last = {"x": torch.zeros(world.num_envs), "lane": torch.zeros(world.num_envs, dtype=torch.long),
-            "truncated": torch.zeros(world.num_envs, dtype=torch.bool)}
+    b = world.num_envs
+    last = {"x": torch.zeros(b), "v": torch.zeros(b), "lane": torch.zeros(b, dtype=torch.long),
+            "car_ahead": torch.zeros(b, dtype=torch.bool), "truncated": torch.zeros(b, dtype=torch.bool)}
 
     def after_step(w, events, alive):  # the state each episode ended in (later steps of an ended env ignored)
-        last["x"] = torch.where(alive, w.state.x[:, 0], last["x"])
-        last["lane"] = torch.where(alive, w.state.lane[:, 0], last["lane"])
-        last["truncated"] = torch.where(alive, events.truncated & ~events.terminated, last["truncated"])
+        s = w.state
+        ahead = (s.lane[:, 1:] == s.lane[:, :1]) & (s.x[:, 1:] > s.x[:, :1])  # an SV ahead in the ego's lane
+        now = {"x": s.x[:, 0], "v": s.v[:, 0], "lane": s.lane[:, 0], "car_ahead": ahead.any(dim=1),
+               "truncated": events.truncated & ~events.terminated}
+        for key, value in now.items():
+            last[key] = torch.where(alive, value, last[key])
 
     results = run_episodes(world, policy.method, policy.learner, after_step=after_step)
     success, collided = results["success"].bool(), results["collided"].bool()
     timed_out = last["truncated"] & ~success & ~collided
-    x = last["x"][timed_out]
-    quantiles = torch.quantile(x, torch.tensor([0.1, 0.5, 0.9])).tolist() if len(x) else []
+    def deciles(values):  # 10th, 50th and 90th percentiles of the out-of-time episodes' values
+        q = torch.quantile(values[timed_out], torch.tensor([0.1, 0.5, 0.9])).tolist() if bool(timed_out.any()) else []
+        return [round(v, 2) for v in q]
     return {"run": run, "method": cfg.method, "scenario": cfg.scenario, "traffic": traffic,
             "episodes": world.num_envs, "success": int(success.sum()), "collision": int(collided.sum()),
             "other_terminal": int((~success & ~collided & ~last["truncated"]).sum()),
             "out_of_time": int(timed_out.sum()),
-            "out_of_time_x_m_p10_p50_p90": [round(q, 2) for q in quantiles],
+            "out_of_time_x_m_p10_p50_p90": deciles(last["x"]),
+            "out_of_time_speed_mps_p10_p50_p90": deciles(last["v"]),
+            "out_of_time_no_car_ahead": int((timed_out & ~last["car_ahead"]).sum()),
             "out_of_time_by_lane": dict(sorted(collections.Counter(last["lane"][timed_out].tolist()).items())),
             "avg_speed_mps": round(float(results["avg_speed"].mean()), 3)}
 

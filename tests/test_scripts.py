@@ -91,7 +91,9 @@ def test_episode_ends_accounts_for_every_episode_and_refuses_a_folder_that_is_no
     assert out["scenario"] == "exit" and out["episodes"] == 3
     assert out["success"] + out["collision"] + out["other_terminal"] + out["out_of_time"] == 3
     assert sum(out["out_of_time_by_lane"].values()) == out["out_of_time"]
-    assert len(out["out_of_time_x_m_p10_p50_p90"]) == (3 if out["out_of_time"] else 0)
+    deciles = 3 if out["out_of_time"] else 0
+    assert len(out["out_of_time_x_m_p10_p50_p90"]) == len(out["out_of_time_speed_mps_p10_p50_p90"]) == deciles
+    assert 0 <= out["out_of_time_no_car_ahead"] <= out["out_of_time"]
     env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
     done = subprocess.run([sys.executable, "scripts/episode_ends.py", str(tmp_path)], env=env, cwd=ROOT,
                           capture_output=True, text=True, timeout=300)
