@@ -98,3 +98,9 @@ def test_episode_ends_accounts_for_every_episode_and_refuses_a_folder_that_is_no
     done = subprocess.run([sys.executable, "scripts/episode_ends.py", str(tmp_path)], env=env, cwd=ROOT,
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 2 and done.stderr.strip().splitlines()[-1].startswith("episode_ends.py: error:")
+
+
+def test_case_corners_replays_an_open_case_to_its_collision():
+    case = "tests/rules/cases/safe-far-lane-cut-in-while-settling-multi-lane-A-adversarial.json"
+    lines = _run("scripts/case_corners.py", case, "--last", "3").stdout.strip().splitlines()
+    assert len(lines) == 3 and lines[-1].endswith("collision=True") and "corners_y=" in lines[-1]

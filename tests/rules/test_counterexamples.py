@@ -19,7 +19,7 @@ from highway_srl.rules.avoidable import SIDE_SWIPE, STOOD, ego_avoidable
 
 CASES = sorted((Path(__file__).parent / "cases").glob("*.json"))
 # counterexamples the safe profile does not close yet (found by the 10^6-episode uniform sweep of 14bd375), with
-# what each misses, traced step by step (body corners from rules.mappings.corner_points): a slow ego (1-2 m/s,
+# what each misses, traced step by step (scripts/case_corners.py CASE): a slow ego (1-2 m/s,
 # where the heading limit opens to 0.6 rad) changing lanes while a car from two lanes over cuts in beside it.
 # The common missing piece is a lateral hold: the ego's controller can only track a lane centre, where RSS's
 # proper response is to stop moving sideways (heading back to 0, staying where it is).
