@@ -32,6 +32,7 @@ from highway_srl.constants import (
 from highway_srl.scenarios import scenario_spec
 from highway_srl.sim.adversary import cut_ins_ahead_with_room
 from highway_srl.sim.collisions_and_stages import ego_collision, stage_events
+from highway_srl.sim.ego import HOLD_LANE
 from highway_srl.sim.events import StageFlags, StepEvents
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.recycle import recycle
@@ -170,8 +171,12 @@ class EpisodeCore:
         return bool(self.tables.can_change(torch.tensor([float(x)]), torch.tensor([int(lane)]), torch.tensor([int(to)]))[0])
 
     def accept_ego_target(self, frame: Frame, target_lane: int) -> int:
-        """World's rule: the ego takes a new target lane only if it is its lane or an allowed change."""
+        """World's rule: the ego takes a new target lane only if it is its lane or an allowed change. The
+        lateral hold (HOLD_LANE) is the lane its centre is in here: the foreign simulators' lane-based
+        controllers cannot stop a car between two lanes (docs/backends.md)."""
         lane = int(frame.lane[0])
+        if target_lane == HOLD_LANE:
+            target_lane = lane
         if target_lane == lane or self.can_change(frame.x[0], lane, target_lane):
             self.ego_target_lane = int(target_lane)
         return self.ego_target_lane

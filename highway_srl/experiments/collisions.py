@@ -140,7 +140,7 @@ class DecisionTrace:
             raise ValueError(f"window must be positive, got {window}")
         self.method, self.step, self.records = method, 0, []
         self._recent: collections.deque = collections.deque(maxlen=window)
-        self._states: collections.deque = collections.deque(maxlen=window + 1)  # (step, x, y, v) after a step
+        self._states: collections.deque = collections.deque(maxlen=window + 1)  # (step, x, y, v, h) after a step
         self._start: torch.Tensor | None = None  # (B,) each env's first decision of its episode (episodes_restart)
 
     def __call__(self, view, t, alive) -> None:
@@ -156,7 +156,7 @@ class DecisionTrace:
         self._recent.append({"step": self.step, **{k: v.clone() for k, v in (  # buffers may be reused
             ("action", decision.action), ("mask", self.method.safe_mask(model)), ("r1", model.r_star[:, 0]),
             ("gap1", model.gaps_m[:, 0]), ("v", snap.ego_vx), ("v1", model.vehicles.vx[:, 0]), ("x", snap.ego_x),
-            ("y", snap.ego_y), ("lane", snap.ego_lane), ("m", model.m_l_ego))}})
+            ("y", snap.ego_y), ("h", snap.ego_heading), ("lane", snap.ego_lane), ("m", model.m_l_ego))}})
         self.step += 1
 
     def _record(self, envs: list[int]) -> None:
@@ -165,7 +165,7 @@ class DecisionTrace:
             first = 0 if self._start is None else int(self._start[env])  # decisions of this episode only
             rows = [{"step": r["step"], "action": names[int(r["action"][env])],
                      "allowed": [n for i, n in enumerate(names) if bool(r["mask"][env, i])],
-                     **{k: float(r[k][env]) for k in ("gap1", "v", "v1", "x", "y")},
+                     **{k: float(r[k][env]) for k in ("gap1", "v", "v1", "x", "y", "h")},
                      "r1": bool(r["r1"][env]), "lane": int(r["lane"][env]), "m": bool(r["m"][env])}
                     for r in self._recent if r["step"] >= first]
             self.records.append({"env": env, "step": self.step - 1, "class": classify_decisions(rows[-CLASS_WINDOW:]),
@@ -179,9 +179,9 @@ class DecisionTrace:
             self._judge_envs(world, new.nonzero().flatten())
 
     def keep_state(self, world) -> None:
-        """Keep the world's positions and speeds after this step (clones on the device; no host read)."""
+        """Keep the world's positions, speeds and headings after this step (device clones; no host read)."""
         s = world.state
-        self._states.append((self.step - 1, s.x.clone(), s.y.clone(), s.v.clone()))
+        self._states.append((self.step - 1, s.x.clone(), s.y.clone(), s.v.clone(), s.heading.clone()))
 
     def _judge_envs(self, world, envs: torch.Tensor) -> None:
         by_env = {rec["env"]: rec for rec in self.records if rec["step"] == self.step - 1 and "kind" not in rec}
@@ -196,7 +196,7 @@ class DecisionTrace:
         the kept one (the other envs' states are unchanged by the reset). Device operations only."""
         s = world.state
         if self._states:
-            self._states[-1] = (self._states[-1][0], s.x.clone(), s.y.clone(), s.v.clone())
+            self._states[-1] = (self._states[-1][0], s.x.clone(), s.y.clone(), s.v.clone(), s.heading.clone())
         start = self._start if self._start is not None else torch.zeros_like(done, dtype=torch.long)
         self._start = torch.where(done, torch.full_like(start, self.step), start)
 
@@ -215,15 +215,16 @@ class DecisionTrace:
         return new
 
     def _judge(self, rec: dict, hit: dict) -> None:
-        states = {step: (x, y, v) for step, x, y, v in self._states}
+        states = {step: rest for step, *rest in self._states}
         env, j = rec["env"], hit.get("sv_index")
         for row in rec["decisions"]:
             before = states.get(row["step"] - 1)  # the state the decision was taken in
             if j is None or before is None:
-                row.update(dx=None, dy=None, v_sv=None)
+                row.update(dx=None, dy=None, v_sv=None, h_sv=None)
                 continue
-            x, y, v = before
-            row.update(dx=float(x[env, j] - x[env, 0]), dy=float(y[env, j] - y[env, 0]), v_sv=float(v[env, j]))
+            x, y, v, h = before
+            row.update(dx=float(x[env, j] - x[env, 0]), dy=float(y[env, j] - y[env, 0]), v_sv=float(v[env, j]),
+                       h_sv=float(h[env, j]))
         sv_changing = hit["sv"] in ("changing", "forced cut-in")
         avoidable, reason = ego_avoidable(hit["kind"], hit["ego_changing"], sv_changing, rec["decisions"])
         rec.update(kind=hit["kind"], ego_changing=hit["ego_changing"], sv_changing=sv_changing,

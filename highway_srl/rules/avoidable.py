@@ -36,6 +36,8 @@ Doubtful cases fall on the avoidable side: a claim of zero avoidable collisions 
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from highway_srl.constants import (
@@ -48,6 +50,7 @@ from highway_srl.constants import (
     VEHICLE_LENGTH_M,
     VEHICLE_WIDTH_M,
 )
+from highway_srl.sim.dynamics import K_HEADING, MIN_TURN_RADIUS_M, YAW_RATE_MAX
 
 Num = torch.Tensor | float
 
@@ -79,6 +82,9 @@ STANDING_ROWS = 8
 # a car behind that came this much nearer over the trace (3 s) drove up on the ego; one that stood or fell back
 # (the ego creeping away from a car standing beside it) did not, and the ego's doubt stays
 CLOSING_M = 1.0
+# RSS's lateral parameters as ad-rss and CARLA's RSS sensor set them by default: lateral acceleration within
+# the response time, the lateral braking of the proper response, the fluctuation margin μ
+LAT_ACCEL_MPS2, LAT_BRAKE_MPS2, LAT_MARGIN_M = 0.2, 0.8, 0.1
 OFF_CENTRE_M = 0.5  # the census (experiments.collisions) takes a centre this far off its lane's centre as changing
 
 
@@ -188,15 +194,77 @@ def stood(rows: list[dict]) -> bool:
 def moved_toward(rows: list[dict]) -> bool:
     """Case 3: within the trace the ego moved LATERAL_MOVE_M or more sideways toward the car it hit (the side
     that car is on at the last decision), counting only the part past the centre of the lane it started the
-    trace in: settling toward its own lane's centre is keeping its lane, not changing into the car's. True
-    where the trace does not keep the ego's or that car's lateral position (doubt falls on the avoidable side)."""
+    trace in (settling toward its own lane's centre is keeping its lane, not changing into the car's), and
+    from RSS's blame time on (lateral_danger_from) it did not brake sideways (braked_sideways): a change
+    into room that was there, answered once the other car turned toward it, is RSS's proper lateral response.
+    True where the trace does not keep the ego's or that car's lateral position (doubt falls on the
+    avoidable side)."""
     first, last = rows[0], rows[-1]
     if first.get("y") is None or last.get("y") is None or last.get("dy") is None:
         return True
     side = 1.0 if last["dy"] > 0 else -1.0
     centre = first["y"] if first.get("lane") is None else first["lane"] * LANE_WIDTH_M
     past = lambda y: max(0.0, (y - centre) * side)  # noqa: E731
-    return past(last["y"]) - past(first["y"]) >= LATERAL_MOVE_M
+    moved = past(last["y"]) - past(first["y"]) >= LATERAL_MOVE_M
+    return moved and not braked_sideways(rows[lateral_danger_from(rows):], side)
+
+
+def braked_sideways(rows: list[dict], side: float) -> bool:
+    """RSS's proper lateral response from the first of rows on: the ego's lateral speed toward `side`
+    (v tan h) grew by at most LAT_ACCEL_MPS2 within the response time (one decision), then fell by at least
+    LAT_BRAKE_MPS2 a second until it was 0. False where a heading is missing."""
+    if any(r.get("h") is None for r in rows):
+        return False
+    u = [r["v"] * math.tan(r["h"]) * side for r in rows]
+    return all(u[k] <= max(0.0, u[0] + (LAT_ACCEL_MPS2 - LAT_BRAKE_MPS2 * (k - 1)) * DT_S) + 1e-6
+               for k in range(1, len(u)))
+
+
+def proper_lateral_speed(v: torch.Tensor, heading: torch.Tensor) -> torch.Tensor:
+    """(B,) m/s: the speed at which an ego holding its lateral position (sim's HOLD_LANE: its heading turns
+    back toward 0 at the lateral controller's rate) slows its lateral speed v sin h by LAT_BRAKE_MPS2 within
+    the next step, RSS's lateral braking; a slow car unwinds its heading too slowly to do it by steering
+    alone (yaw rate <= v / MIN_TURN_RADIUS_M). v, heading: (B,) the ego's speed and heading now."""
+    yaw = torch.minimum(torch.minimum(K_HEADING * heading.abs(), v / MIN_TURN_RADIUS_M), torch.full_like(v, YAW_RATE_MAX))
+    sin_next = torch.sin((heading.abs() - yaw * DT_S).clamp(min=0.0))
+    lateral_next = (v * torch.sin(heading.abs()) - LAT_BRAKE_MPS2 * DT_S).clamp(min=0.0)
+    return torch.where(sin_next > 1e-3, lateral_next / sin_next.clamp(min=1e-3), v)
+
+
+def lateral_danger_from(rows: list[dict]) -> int:
+    """The first decision from which the ego and the car it hit stayed closer sideways than RSS's lateral
+    safe distance (lateral_safe_distance; bodies' lateral extents from their headings): RSS's blame time,
+    after which a car moving sideways toward the other owes the lateral response. Before it the ego's
+    sideways move was a change into room that was there (a car two lanes over turning in later is the
+    one that moved into the other). 0 where a row lacks the headings (older traces: the whole trace)."""
+    i = len(rows)
+    while i > 0 and lateral_danger(rows[i - 1]):
+        i -= 1
+    return min(i, len(rows) - 1)
+
+
+def lateral_danger(row: dict) -> bool:
+    """The bodies' lateral gap at this decision is below lateral_safe_distance for the two lateral speeds
+    toward each other (the ego's v tan h, the car's v_sv sin h_sv). True where a value is missing."""
+    if any(row.get(k) is None for k in ("dy", "h", "h_sv", "v_sv")):
+        return True
+    side = 1.0 if row["dy"] > 0 else -1.0
+    extent = lambda h: 0.5 * VEHICLE_LENGTH_M * abs(math.sin(h)) + 0.5 * VEHICLE_WIDTH_M * math.cos(h)  # noqa: E731
+    gap = abs(row["dy"]) - extent(row["h"]) - extent(row["h_sv"])
+    toward_ego = row["v"] * math.tan(row["h"]) * side
+    toward_sv = -row["v_sv"] * math.sin(row["h_sv"]) * side
+    return gap < lateral_safe_distance(toward_ego, toward_sv)
+
+
+def lateral_safe_distance(u_a: float, u_b: float, *, response_s: float = DT_S, accel: float = LAT_ACCEL_MPS2,
+                          brake: float = LAT_BRAKE_MPS2, margin: float = LAT_MARGIN_M) -> float:
+    """RSS minimum safe lateral distance (Shalev-Shwartz et al. 2017, Definition 4), m, for two cars whose
+    lateral speeds toward each other are u_a, u_b (m/s; negative: away): μ plus each car's worst-case travel
+    toward the other, accelerating sideways at `accel` for ρ, then braking sideways at `brake` to a stop."""
+    def travel(u: float) -> float:
+        u1 = u + response_s * accel
+        return u * response_s + 0.5 * accel * response_s ** 2 + u1 * abs(u1) / (2.0 * brake)
+    return margin + max(0.0, travel(u_a) + travel(u_b))
 
 
 def _needless_brake(row: dict) -> bool:

@@ -50,6 +50,7 @@ from highway_srl.rules.mappings import (
     target_lane_local,
     target_speed,
 )
+from highway_srl.rules.avoidable import proper_lateral_speed
 from highway_srl.rules.lanes_by_body import body_room, body_slots, with_bodies
 from highway_srl.rules.observation import build_observation, ego_progress_feature
 from highway_srl.rules.profiles import control_profile
@@ -58,6 +59,7 @@ from highway_srl.rules.reward_machine import (D_ACC_M, HighwayPropositions, desi
 from highway_srl.rules.safe_actions import IDLE, LANE_CHANGE, SLOWER, safe_action_mask_from
 from highway_srl.rules.safe_distance import rule_indicator
 from highway_srl.rules.third_lane import third_lane, third_lane_cars, third_lane_room, with_third_lane
+from highway_srl.sim.ego import HOLD_LANE
 from highway_srl.sim.road import Road
 from highway_srl.sim.snapshot import Snapshot
 
@@ -172,6 +174,7 @@ class SafetyLayer:
         ego_body_straddles: bool | None = None,
         lanes_by_body: bool | None = None,
         back_out_of_entry: bool | None = None,
+        hold_lateral: bool | None = None,
         reaction_s: float = DT_S,
         ego_brake_mps2: float = EGO_BRAKE_MAX_MPS2,
         sv_brake_mps2: float = SV_BRAKE_MAX_MPS2,
@@ -197,6 +200,7 @@ class SafetyLayer:
         self.ego_body_straddles = pick(ego_body_straddles, prof.ego_body_straddles)
         self.lanes_by_body = pick(lanes_by_body, prof.lanes_by_body)
         self.back_out_of_entry = pick(back_out_of_entry, prof.back_out_of_entry)
+        self.hold_lateral = pick(hold_lateral, prof.hold_lateral)
         self.reaction_s, self.ego_brake, self.sv_brake = reaction_s, ego_brake_mps2, sv_brake_mps2
         self.rm = highway_reward_machine()
         self.target_lane: torch.Tensor | None = None  # (B,) long global T*; -1: not yet known
@@ -370,6 +374,23 @@ class SafetyLayer:
         return front_room(gaps, veh.vx, sv2_joins, self.standstill_gap_m, self.sv_brake, extra)
 
     # ------------------------------------------------------------------ act
+    def _entry(self, m, snap, previous: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """back_out_of_entry and hold_lateral: (the held target, local; where to hold (B,) bool or None)."""
+        # ours: the centre has crossed, the body not yet: the lane being entered turning unsafe (a car
+        # turning into it) sends the ego back where it came from, if that lane is safe; settling on
+        # toward the lane's centre met the car (RSS: stop moving sideways toward it)
+        w = self.road.lane_width_m
+        y_local = snap.ego_y - m.lanes.base_lane * w
+        body = m.m_l_ego | crosses_line(y_local, snap.ego_heading, w)
+        entering = (previous == m.lanes.c_id) & ~(m.r_star[:, 0] & m.r_star[:, 2])
+        back = entering & body & m.r_star[:, 1] & m.r_star[:, 3] & self.back_out_of_entry
+        previous = torch.where(back, 1 - m.lanes.c_id, previous)
+        if not self.hold_lateral:
+            return previous, None
+        # ours: no way back (or from a lane the model no longer holds): hold
+        outer = crosses_line(y_local + w, snap.ego_heading, w) | crosses_line(y_local - w, snap.ego_heading, w)
+        return previous, entering & (body | outer) & ~back
+
     def act(self, action: torch.Tensor, use_second: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Action and control mapping (Eqs. 34-35): (target_lane (B,) long global, target_speed (B,) m/s).
 
@@ -385,7 +406,7 @@ class SafetyLayer:
         veh = m.vehicles
         dx3 = snap.ego_x - veh.x[:, 2]
         dx4 = snap.ego_x - veh.x[:, 3]
-        previous = None
+        previous, hold = None, None
         if self.hold_lane_change:
             # "the lateral plan remains unchanged": Faster/Idle/Slower keep the target of a change under way
             previous = (self.target_lane - m.lanes.base_lane).clamp(0, 1)
@@ -394,14 +415,8 @@ class SafetyLayer:
                 # Slower fall back to the literal Eq. 34 (T* = C_ID) and the change is aborted
                 still_safe = m.r_star[:, 1] & m.r_star[:, 3]
                 previous = torch.where(still_safe, previous, m.lanes.c_id.long())
-            if self.back_out_of_entry:
-                # ours: the centre has crossed, the body not yet: the lane being entered turning unsafe (a car
-                # turning into it) sends the ego back where it came from, if that lane is safe; settling on
-                # toward the lane's centre met the car (RSS: stop moving sideways toward it)
-                w = self.road.lane_width_m
-                body = m.m_l_ego | crosses_line(snap.ego_y - m.lanes.base_lane * w, snap.ego_heading, w)
-                entering = body & (previous == m.lanes.c_id) & ~(m.r_star[:, 0] & m.r_star[:, 2])
-                previous = torch.where(entering & m.r_star[:, 1] & m.r_star[:, 3], 1 - m.lanes.c_id, previous)
+            if self.back_out_of_entry or self.hold_lateral:
+                previous, hold = self._entry(m, snap, previous)
         t_local = target_lane_local(
             action, m.lanes.c_id, m.m_l_ego, m.r_star[:, 2], m.r_star[:, 3], dx3, dx4, previous_target=previous,
             check=not self.static,
@@ -426,4 +441,8 @@ class SafetyLayer:
         if self.last_resort_stops:
             last = (action == IDLE) & ~m.r_star[:, 0]
             speed = torch.where(last, stopping_speed(speed_now, m.front_room_m, self.ego_brake), speed)
+        if hold is not None:  # RSS's lateral response: stop moving sideways, braking as far as that needs
+            hold = hold & (lane == m.lanes.base_lane + m.lanes.c_id)
+            speed = torch.where(hold, torch.minimum(speed, proper_lateral_speed(speed_now, snap.ego_heading)), speed)
+            lane = torch.where(hold, HOLD_LANE, lane)
         return lane, speed

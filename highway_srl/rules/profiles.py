@@ -26,8 +26,11 @@ class ControlProfile:
     ego_body_straddles: the straddle grouping also holds while the ego's body crosses the line; lanes_by_body:
     the nearest cars whose bodies reach into the pair's lanes join those lanes' rules (rules.lanes_by_body);
     back_out_of_entry: an ego whose body still crosses the line into the lane it is entering goes back to the
-    lane it came from when the one it enters turns unsafe and that one is safe. docs/paper-notes.md, "Profiles:
-    paper vs safe", gives each with the crash that motivated it.
+    lane it came from when the one it enters turns unsafe and that one is safe; hold_lateral: where it cannot go
+    back (that lane unsafe too, or one the model no longer holds), it stops moving sideways instead (the
+    simulator's HOLD_LANE), braking as far as RSS's lateral response needs (rules.avoidable.
+    proper_lateral_speed). docs/paper-notes.md, "Profiles: paper vs safe", gives each with the crash that
+    motivated it.
     """
 
     abort_unsafe_change: bool
@@ -42,13 +45,14 @@ class ControlProfile:
     ego_body_straddles: bool
     lanes_by_body: bool
     back_out_of_entry: bool
+    hold_lateral: bool
 
 
 # paper: Eqs. 31-35 as printed plus only the readings they cannot work without (holding a change under way);
 # safe: the project's additions on top, each justified by a measured crash.
 PROFILES: dict[str, ControlProfile] = {
-    "paper": ControlProfile(False, False, False, False, 0.0, False, False, False, False, False, False, False),
-    "safe": ControlProfile(True, True, True, True, STANDSTILL_GAP_M, True, True, True, True, True, True, True),
+    "paper": ControlProfile(False, False, False, False, 0.0, False, False, False, False, False, False, False, False),
+    "safe": ControlProfile(True, True, True, True, STANDSTILL_GAP_M, True, True, True, True, True, True, True, True),
 }
 
 

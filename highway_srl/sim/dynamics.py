@@ -12,7 +12,7 @@ import torch
 from highway_srl.constants import DT_S, V_MAX_MPS
 from highway_srl.sim import adversary, sv_drivers
 from highway_srl.sim.collisions_and_stages import sv_contacts
-from highway_srl.sim.ego import ego_control
+from highway_srl.sim.ego import HOLD_LANE, ego_control
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.road import Road
 from highway_srl.sim.selection import entries, flat_index, none_left, put_flat, take_flat
@@ -58,7 +58,9 @@ def move_vehicles(s: WorldState, road: Road, tables: LaneTables, layout: Layout,
     v_new, v_mid = integrate_speed(s.v, accel, DT_S, V_MAX_MPS)
     x_old = s.x.clone()
     s.x.add_(v_mid * DT_S)  # along the lane; corrected below for the few cars that are turned
-    lateral(s, road, v_mid, x_old, static)
+    hold = torch.zeros_like(s.forced)
+    hold[:, 0] = target_lane == HOLD_LANE
+    lateral(s, road, v_mid, x_old, static, hold)
     s.v.copy_(v_new)
     return sv_contacts(s, near, nb.leader, static), nb
 
@@ -87,10 +89,12 @@ def integrate_speed(v: torch.Tensor, accel: torch.Tensor, dt: float, ego_v_max: 
     return v_new, v_mean
 
 
-def lateral(s: WorldState, road: Road, v_mid: torch.Tensor, x_old: torch.Tensor, static: bool = False) -> None:
+def lateral(s: WorldState, road: Road, v_mid: torch.Tensor, x_old: torch.Tensor, static: bool = False,
+            hold: torch.Tensor | None = None) -> None:
     """Lateral tracking and the lateral part of the integration, for the cars that are not settled in
     their lane (a changing car, one off its lane's centre, or one not aligned with the road); a car that
-    comes within SETTLED_M / SETTLED_RAD of its lane's centre line is snapped onto it."""
+    comes within SETTLED_M / SETTLED_RAD of its lane's centre line is snapped onto it. hold (B, N) bool: cars
+    that stop moving sideways instead (their own y is the line they track: the heading turns back to 0)."""
     w = road.lane_width_m
     active = (s.target_lane != s.lane) | (s.heading != 0) | (s.y != s.lane.float() * w)
     bb, ii, sel = entries(active, static)
@@ -99,6 +103,8 @@ def lateral(s: WorldState, road: Road, v_mid: torch.Tensor, x_old: torch.Tensor,
     flat = flat_index(bb, ii, s.x.shape[1])
     y, h, v, tgt = (take_flat(t, flat) for t in (s.y, s.heading, s.v, s.target_lane))
     y_t = tgt.float() * w
+    if hold is not None:
+        y_t = torch.where(take_flat(hold, flat), y, y_t)
     e_y = y_t - y
     vy_d = (K_Y * e_y).clamp(-VY_MAX_MPS, VY_MAX_MPS)
     v_safe = v.clamp(min=0.5)

@@ -15,6 +15,7 @@ from highway_srl.constants import TrafficLevel
 from highway_srl.sim import dynamics
 from highway_srl.sim.adversary import cut_ins_whatever_the_gaps
 from highway_srl.sim.collisions_and_stages import ego_collision, stage_events
+from highway_srl.sim.ego import HOLD_LANE
 from highway_srl.sim.events import StepEvents
 from highway_srl.sim.lane_tables import LaneTables
 from highway_srl.sim.recycle import recycle
@@ -102,10 +103,12 @@ def check_command_types(lane: torch.Tensor, speed: torch.Tensor, num_envs: int) 
 
 
 def check_command_values(lane: torch.Tensor, speed: torch.Tensor, num_lanes: int) -> None:
-    """ValueError unless every lane is one of the road's 0..num_lanes-1 and every speed is finite and >= 0."""
+    """ValueError unless every lane is one of the road's 0..num_lanes-1 (or HOLD_LANE) and every speed is
+    finite and >= 0."""
     lane_lo, lane_hi = (v.item() for v in torch.aminmax(lane))
-    if lane_lo < 0 or lane_hi >= num_lanes:
-        raise ValueError(f"target_lane must be a lane of this road, 0..{num_lanes - 1}, got {lane_lo}..{lane_hi}")
+    if lane_lo < HOLD_LANE or lane_hi >= num_lanes:
+        raise ValueError(f"target_lane must be a lane of this road, 0..{num_lanes - 1}, or {HOLD_LANE} (hold the "
+                         f"lateral position), got {lane_lo}..{lane_hi}")
     speed_lo, speed_hi = (v.item() for v in torch.aminmax(speed))  # NaN anywhere makes both NaN
     if not (speed_lo >= 0 and math.isfinite(speed_hi)):
         raise ValueError(f"target_speed must be finite and >= 0 m/s, got {speed_lo}..{speed_hi}")

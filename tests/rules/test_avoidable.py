@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 
@@ -17,7 +19,11 @@ from highway_srl.rules.avoidable import (
     SIDE_ROOM,
     SIDE_SWIPE,
     STOOD,
+    braked_sideways,
     ego_avoidable,
+    lateral_danger_from,
+    lateral_safe_distance,
+    proper_lateral_speed,
     rss_safe_distance,
     stopping_distance_steps,
 )
@@ -162,6 +168,75 @@ def test_an_ego_changing_lanes_counts_as_changing_into_the_car_only_if_it_moved_
     assert ego_avoidable("side", True, True, [{**s, "y": None} for s in standing]) == (True, EGO_CHANGED)
     # a stalled ego met by a car keeping its lane: the side case with neither changing, doubt on the ego
     assert ego_avoidable("side", True, False, stalled) == (True, SIDE_KEEPING)
+
+
+def test_rss_lateral_safe_distance_golden_values():
+    """RSS Definition 4 in the 'toward each other' form, μ = 0.1, ρ = 0.125 s, a_lat,accel = 0.2, a_lat,brake =
+    0.8 m/s² (ad-rss's and CARLA's defaults). By hand, both standing: μ + 2 (½·0.2·0.125² + 0.025²/1.6) =
+    0.1 + 2 (0.0015625 + 0.000390625) = 0.10390625; the ego at 0.5 m/s toward a car standing sideways:
+    0.1 + (0.0625 + 0.0015625 + 0.525²/1.6) + 0.001953125 = 0.338281..; a car moving away faster than
+    it can accelerate toward: its travel counts negative (it brakes to a stop moving away)."""
+    assert lateral_safe_distance(0.0, 0.0) == pytest.approx(0.10390625, abs=1e-12)
+    assert lateral_safe_distance(0.5, 0.0) == pytest.approx(0.1 + 0.0625 + 0.0015625 + 0.525 ** 2 / 1.6 + 0.001953125,
+                                                            abs=1e-12)
+    away = -1.0 * 0.125 + 0.0015625 - 0.975 ** 2 / 1.6
+    assert lateral_safe_distance(0.5, -1.0) == pytest.approx(0.1 + max(0.0, 0.0625 + 0.0015625 + 0.525 ** 2 / 1.6 + away))
+    assert lateral_safe_distance(0.0, -3.0) == 0.1  # [.]_+ clamps, μ stays
+    # ρ = 1 s, a = 1, b = 1, u = 1 each: μ + 2 (1 + 0.5 + 2²/2) = 7.1
+    assert lateral_safe_distance(1.0, 1.0, response_s=1.0, accel=1.0, brake=1.0) == pytest.approx(7.1)
+
+
+def test_the_blame_time_is_the_start_of_the_last_dangerous_run():
+    """A car two lanes over (dy 7 m) is no lateral danger to an ego changing lanes toward it at 0.5 m/s;
+    once it turns in toward the ego (h_sv −0.25 at 8 m/s: 2 m/s sideways) with the gap closing, it is."""
+    far = {**row(-4.0, dy=7.0, v=2.0, v_sv=8.0), "y": 1.0, "h": 0.245, "h_sv": 0.0}
+    near = {**row(-2.0, dy=3.5, v=2.0, v_sv=8.0), "y": 2.0, "h": 0.245, "h_sv": -0.25}
+    assert lateral_danger_from([far, far, near, near]) == 2
+    assert lateral_danger_from([near, far, near]) == 2  # the last unbroken run
+    assert lateral_danger_from([far, far]) == 1  # never dangerous: the last decision only
+    assert lateral_danger_from([{**far, "h": None}, far]) == 1
+    assert lateral_danger_from([near, {**far, "h_sv": None}]) == 0  # a missing heading is danger (doubt)
+
+
+def test_braking_sideways_is_the_rss_lateral_response():
+    """u = v tan h toward the car may grow by 0.2·δt within ρ (one decision), then must fall by 0.8·δt a
+    decision until 0. Braking at 6 m/s² at a fixed heading does it; settling on at the same speed does not."""
+    h = math.atan(0.5 / 4.0)  # 0.5 m/s sideways at 4 m/s
+    braking = [{"v": 4.0 - 0.75 * k, "h": h} for k in range(5)]
+    assert braked_sideways(braking, 1.0)
+    assert not braked_sideways([{"v": 4.0, "h": h}] * 3, 1.0)
+    assert braked_sideways([{"v": 4.0, "h": h}] * 2, 1.0)  # within the response time
+    assert braked_sideways([{"v": 4.0, "h": -h}] * 5, 1.0)  # moving away
+    assert not braked_sideways([{"v": 4.0, "h": None}] * 2, 1.0)
+
+
+def test_a_change_into_room_answered_once_the_car_turned_in_is_not_the_egos():
+    """The traced exit A case, in short: the ego entered a free lane at 0.5 m/s sideways; a car from two lanes
+    over turned into that lane behind it. Settling on after the blame time is changing into it; braking
+    sideways from then on is RSS's proper response, and the side case judges the other car."""
+    h = math.atan(0.5 / 1.0)
+    before = [{**row(-6.0 + 0.5 * k, dy=4.8 - 0.05 * k, v=1.0, v_sv=8.0), "y": 1.2 + 0.06 * k, "h": h, "h_sv": 0.0,
+               "lane": 0} for k in range(6)]
+    turning = [{**row(-3.0 + 0.7 * k, dy=4.3 - 0.3 * k, v=1.0, v_sv=8.0), "y": 1.6 + 0.06 * k, "h": h,
+                "h_sv": -0.25, "lane": 0} for k in range(4)]
+    assert lateral_danger_from(before + turning) == 6
+    assert ego_avoidable("side", True, True, before + turning) == (True, EGO_CHANGED)
+    braking = [{**r, "v": max(0.0, 1.0 - 0.5 * k)} for k, r in enumerate(turning)]
+    assert ego_avoidable("side", True, True, before + braking) == (False, SIDE_SWIPE)
+
+
+def test_the_holds_speed_cap_slows_the_lateral_speed_by_the_rss_braking():
+    """proper_lateral_speed: after one step of unwinding at the yaw limit (v / 4 m, at most 0.8 rad/s, and
+    K_HEADING·h), v' sin h' = v sin h − 0.8·δt; an aligned ego keeps its speed."""
+    from highway_srl.sim.dynamics import K_HEADING, MIN_TURN_RADIUS_M, YAW_RATE_MAX
+
+    v, h = torch.tensor([1.0, 8.0, 5.0]), torch.tensor([0.55, 0.25, 0.0])
+    cap = proper_lateral_speed(v, h)
+    for k in range(2):
+        yaw = min(K_HEADING * float(h[k]), float(v[k]) / MIN_TURN_RADIUS_M, YAW_RATE_MAX)
+        h_next = float(h[k]) - yaw * 0.125
+        assert float(cap[k]) * math.sin(h_next) == pytest.approx(float(v[k]) * math.sin(float(h[k])) - 0.1, abs=1e-5)
+    assert float(cap[2]) == 5.0
 
 
 def test_the_other_cases():

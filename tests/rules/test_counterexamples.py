@@ -18,25 +18,21 @@ from highway_srl.experiments import falsify as fz
 from highway_srl.rules.avoidable import SIDE_SWIPE, STOOD, ego_avoidable
 
 CASES = sorted((Path(__file__).parent / "cases").glob("*.json"))
-# counterexamples the safe profile does not close yet (found by the 10^6-episode uniform sweep of 14bd375), with
-# what each misses, traced step by step (scripts/case_corners.py CASE): a slow ego (1-2 m/s,
-# where the heading limit opens to 0.6 rad) changing lanes while a car from two lanes over cuts in beside it.
-# The common missing piece is a lateral hold: the ego's controller can only track a lane centre, where RSS's
-# proper response is to stop moving sideways (heading back to 0, staying where it is).
-OPEN: dict[str, str] = {
-    "safe-far-lane-cut-in-while-settling-multi-lane-A-adversarial.json":
-        "back_out_of_entry reverses the change (heading +0.33 to -0.44 rad at 2.3 m/s); the centre moves 0.5 m "
-        "away from the car that stopped beside it, but the rear corner swings 1.6 m toward it, into its nose: "
-        "bodies turn about their centre in the simulator (about the rear axle the swing would be ~0.6 m)",
-    "safe-far-lane-cut-in-while-settling-back-multi-lane-A-adversarial.json":
-        "the ego's change to the far lane given up (back to the lane its centre is in) while a car from two "
-        "lanes over turns into that lane level with it (dx 0.2-0.7 m, 1.5 m/s sideways); the ego brakes to a "
-        "stand, its body still 0.9 m over the line to the far lane, and is hit in the side",
-    "safe-far-lane-cut-in-while-settling-exit-A-adversarial.json":
-        "entering at 1.1 m/s with the heading at 0.50-0.57 rad, the ego's front corner reaches 2.1 m past its "
-        "centre into the lane, into a car cutting in from two lanes over at dx -0.9 m; turning the heading "
-        "back to 0 would pull the corner back ~1.2 m",
-}
+# counterexamples the safe profile does not close yet, with what each misses (scripts/case_corners.py CASE
+# traces one step by step): none today. The last three, a slow ego changing lanes while a car from two lanes
+# over cut in beside it, were closed by the lateral hold (hold_lateral, below) and RSS's blame time in the
+# verdict (rules.avoidable.lateral_danger_from).
+OPEN: dict[str, str] = {}
+# cases that still collide under the safe profile, replayed today, and the verdict on that collision: the ego
+# went back to the lane it came from as the car turned in (moving away from it: RSS's proper lateral response)
+# and its rear corner, the body turning about its centre in the simulator, swung 1.6 m into that car's nose
+REPLAY_UNAVOIDABLE = {"safe-far-lane-cut-in-while-settling-multi-lane-A-adversarial.json": SIDE_SWIPE}
+# cases an addition prevents whose collision, with the addition off, the verdict judges unavoidable: the
+# ego braked (laterally, by braking) from RSS's blame time on while a car from two lanes over turned in level
+# with it
+PREVENTED = dict.fromkeys(["safe-greedy-far-lane-cut-in-while-settling-multi-lane-B-adversarial.json",
+                           "safe-greedy-far-lane-cut-in-while-settling-multi-lane-C-adversarial.json"],
+                          {"back_out_of_entry": False, "hold_lateral": False})
 # safe-profile holes closed by making an addition stricter, where switching the addition off is no test (the
 # old rule is not selectable): what changed
 STRENGTHENED = {
@@ -82,16 +78,19 @@ CLOSED_BY = {
     "safe-nose-over-the-line-after-an-aborted-change-multi-lane-F.json": {"ego_body_straddles": False},
     # a car stopped mid-change across the line, its tail in the ego's lane, behind the nearest car of its
     # own lane: no slot held it until the lanes were also asked by body
-    **dict.fromkeys([f"safe-greedy-across-the-line-behind-the-nearest-{where}.json"
-                     for where in ("multi-lane-D", "merge-B", "exit-E")], NOT_BY_BODY),
+    "safe-greedy-across-the-line-behind-the-nearest-multi-lane-D.json": NOT_BY_BODY,
+    **dict.fromkeys([f"safe-greedy-across-the-line-behind-the-nearest-{where}.json" for where in ("merge-B", "exit-E")],
+                    {**NOT_BY_BODY, "hold_lateral": False}),  # the hold answers them too
     # the ego's centre in the lane it was entering, its body still over the line, when a car from two lanes over
     # turned into that lane; and an ego creeping on beside a car standing across the line, whose body, turning
     # about its centre, swung into that car's nose: going back to the lane it came from answers both
-    **dict.fromkeys(["safe-far-lane-cut-in-while-settling-merge-A-adversarial.json",
-                     "safe-greedy-far-lane-cut-in-while-settling-multi-lane-B-adversarial.json",
-                     "safe-greedy-far-lane-cut-in-while-settling-multi-lane-C-adversarial.json",
-                     "safe-creeping-beside-a-car-standing-across-the-line-multi-lane-F-adversarial.json"],
-                    {"back_out_of_entry": False}),
+    "safe-far-lane-cut-in-while-settling-merge-A-adversarial.json": {"back_out_of_entry": False, "hold_lateral": False},
+    "safe-creeping-beside-a-car-standing-across-the-line-multi-lane-F-adversarial.json": {"back_out_of_entry": False},
+    # a slow ego entering a lane at up to 0.6 rad, with no way back, while a car from two lanes over turned into
+    # that lane: it settled on into the car (exit A), or gave its change up and stood over the line (multi-lane
+    # A); holding its lateral position and braking as far as RSS's lateral response needs answers both
+    **dict.fromkeys(["safe-far-lane-cut-in-while-settling-exit-A-adversarial.json",
+                     "safe-far-lane-cut-in-while-settling-back-multi-lane-A-adversarial.json"], {"hold_lateral": False}),
 }
 
 
@@ -102,8 +101,10 @@ def _params(paths):
 
 def test_the_suite_holds_every_kind_of_case():
     profiles = {fz.load_case(p).profile for p in CASES}
-    assert profiles == {"paper", "safe"} and set(OPEN) | set(CLOSED_BY) | set(UNAVOIDABLE) | set(STRENGTHENED) == {
+    kinds = (OPEN, CLOSED_BY, UNAVOIDABLE, STRENGTHENED, REPLAY_UNAVOIDABLE, PREVENTED)
+    assert profiles == {"paper", "safe"} and set().union(*kinds) == {
         p.name for p in CASES if fz.load_case(p).profile == "safe"}
+    assert sum(map(len, kinds)) == len(set().union(*kinds)), "a case in two kinds"
 
 
 @pytest.mark.parametrize("path", _params(CASES))
@@ -126,6 +127,20 @@ def test_a_safe_profile_hole_comes_back_without_its_addition(name):
     result = fz.replay_case(case, "safe", **CLOSED_BY[name])
     assert result["confirmed"] and result["all_allowed"] and result["ego_avoidable"], result
     # with it: the recorded plan as far as the layer allows it (a forbidden action executed proves nothing)
+    assert not fz.replay_case(case, "safe", substitute=True)["collided"]
+
+
+@pytest.mark.parametrize("name", sorted(REPLAY_UNAVOIDABLE))
+def test_a_case_that_still_collides_is_judged_unavoidable_on_replay(name):
+    result = fz.replay_case(fz.load_case(Path(__file__).parent / "cases" / name), "safe", substitute=True)
+    assert result["collided"] and not result["ego_avoidable"] and result["cause"].endswith(REPLAY_UNAVOIDABLE[name])
+
+
+@pytest.mark.parametrize("name", sorted(PREVENTED))
+def test_an_addition_prevents_a_collision_the_verdict_calls_unavoidable(name):
+    case = fz.load_case(Path(__file__).parent / "cases" / name)
+    without = fz.replay_case(case, "safe", **PREVENTED[name])
+    assert without["confirmed"] and without["all_allowed"] and not without["ego_avoidable"], without
     assert not fz.replay_case(case, "safe", substitute=True)["collided"]
 
 

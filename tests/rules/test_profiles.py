@@ -1,7 +1,7 @@
 """Control profiles of the SafetyLayer (docs/paper-notes.md, "Profiles: paper vs safe").
 
 `paper` = Eqs. 31-35 as printed plus the hold of a lane change under way; `safe` = today's behaviour with
-our twelve additions. One crafted situation per addition where the two profiles differ exactly as documented,
+our thirteen additions. One crafted situation per addition where the two profiles differ exactly as documented,
 and a golden test of Eqs. 31-35 under `paper`.
 """
 
@@ -13,7 +13,9 @@ from highway_srl.rules import PROFILES, RM_STATES, SafetyLayer, control_profile
 from highway_srl.rules.mappings import NO_LANE, crossing_toward, reaching_over, stopping_speed
 from highway_srl.rules.third_lane import third_lane
 from highway_srl.rules.raw import RawSafetyLayer
+from highway_srl.rules.avoidable import proper_lateral_speed
 from highway_srl.rules.safe_actions import FASTER, IDLE, LANE_CHANGE, SLOWER
+from highway_srl.sim import HOLD_LANE
 from highway_srl.sim.road import make_road
 
 W = 3.5
@@ -31,10 +33,10 @@ def test_the_default_profile_is_every_entry_points_and_each_profile_sets_its_add
     options = lambda lay: (lay.abort_unsafe_change, lay.brake_while_changing, lay.finish_in_window,  # noqa: E731
                            lay.straddle_grouping, lay.standstill_gap_m, lay.turning_in_is_near, lay.last_resort_stops,
                            lay.reaching_over_is_near, lay.watch_third_lane, lay.ego_body_straddles, lay.lanes_by_body,
-                           lay.back_out_of_entry)
-    assert options(layer) == (True, True, True, True, 1.0, True, True, True, True, True, True, True)
+                           lay.back_out_of_entry, lay.hold_lateral)
+    assert options(layer) == (True, True, True, True, 1.0, True, True, True, True, True, True, True, True)
     paper = SafetyLayer(make_road("two-lane"), profile="paper")
-    assert options(paper) == (False, False, False, False, 0.0, False, False, False, False, False, False, False)
+    assert options(paper) == (False, False, False, False, 0.0, False, False, False, False, False, False, False, False)
     assert paper.hold_lane_change and layer.hold_lane_change  # both hold a change under way
     assert set(PROFILES) == {"paper", "safe"}
 
@@ -90,6 +92,26 @@ def test_an_ego_entering_a_lane_that_turns_unsafe_backs_out_only_under_safe(hand
         step = layer.observe(world)
         assert step.primary.r_star[:, 2].tolist() == [False, False] and step.primary.lanes.c_id.tolist() == [1, 1]
         assert layer.act(torch.tensor([IDLE] * 2))[0].tolist() == expected, name
+
+
+def test_an_entering_ego_with_no_way_back_holds_its_lateral_position_only_under_safe(hand_world):
+    """hold_lateral: the scene of the test above with a car 1 m behind in lane 0 too (R*4 = 0: no way back):
+    paper settles on into lane 1, safe commands HOLD_LANE with the speed capped so that the lateral speed falls
+    by RSS's 0.8 m/s² (proper_lateral_speed; 8 m/s at 0.1 rad); the layer keeps lane 1 as the change's target,
+    so the change resumes once that lane is safe again. Off (hold_lateral=False) the ego settles on."""
+    road = make_road("two-lane")
+    for name, opts, expected in (("paper", {}, 1), ("safe", {}, HOLD_LANE), ("safe", {"hold_lateral": False}, 1)):
+        world = hand_world(road, [{"ego": (0.0, 0.0, 8.0, 0.0), "svs": []}])
+        layer = SafetyLayer(road, profile=name, **opts)
+        layer.observe(world)
+        layer.act(torch.tensor([LANE_CHANGE]))
+        world.scenes[0].update(ego=(2.0, 2.0, 8.0, 0.1), svs=[(-4.0, W, 12.0, 0.0), (-4.0, 0.0, 12.0, 0.0)])
+        step = layer.observe(world)
+        assert step.primary.r_star[0].tolist() == [True, True, False, False]
+        lane, speed = layer.act(torch.tensor([IDLE]))
+        assert int(lane) == expected and int(layer.target_lane) == 1, (name, opts)
+        cap = float(proper_lateral_speed(torch.tensor([8.0]), torch.tensor([0.1])))
+        assert float(speed) == pytest.approx(cap if expected == HOLD_LANE else 8.0, rel=1e-5), (name, opts)
 
 
 def test_lane_change_behind_an_unsafe_leader_brakes_only_under_safe(hand_world):

@@ -16,8 +16,8 @@ def _state(world: World) -> list[torch.Tensor]:
 
 
 @pytest.mark.parametrize("lane, speed, message", [
-    (7, 8.0, "target_lane must be a lane of this road, 0..1, got 7..7"),
-    ([-1, 0, 1], [8.0] * 3, "target_lane must be a lane of this road, 0..1, got -1..1"),
+    (7, 8.0, "target_lane must be a lane of this road, 0..1, or -1 (hold the lateral position), got 7..7"),
+    ([-2, 0, 1], [8.0] * 3, "target_lane must be a lane of this road, 0..1, or -1 (hold the lateral position), got -2..1"),
     (torch.tensor([1.0, 0.0, 1.0]), [8.0] * 3, "target_lane must hold integer lane indices, got dtype torch.float32"),
     (np.array([True, False, True]), [8.0] * 3, "got dtype torch.bool"),
     ([0, 1], [8.0] * 3, "target_lane needs 3 value(s), one per env, got shape (2,)"),
@@ -41,7 +41,7 @@ def test_bad_commands_are_one_value_error_and_nothing_moves(lane, speed, message
 def test_the_ramp_lane_is_a_lane_of_a_ramp_road():
     world = World("merge", "C", num_envs=1, seed=0)
     world.step([2], [8.0])  # merge: lane 2 is the on-ramp
-    with pytest.raises(ValueError, match="0..2, got 3..3"):
+    with pytest.raises(ValueError, match=r"0..2, or -1 \(hold the lateral position\), got 3..3"):
         world.step([3], [8.0])
 
 

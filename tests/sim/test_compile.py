@@ -8,7 +8,7 @@ from dataclasses import fields
 import pytest
 import torch
 
-from highway_srl.sim import World
+from highway_srl.sim import HOLD_LANE, World
 from highway_srl.sim.ego_driver import idm_ego
 from highway_srl.sim.state import astuple_shallow
 from highway_srl.sim.step import step_state
@@ -27,11 +27,12 @@ ENVS = 8
 
 
 def _commands(world: World, t: int):
-    """The IDM ego, with a random lane command every few steps so that refused and accepted changes occur."""
+    """The IDM ego, with a random lane command every few steps so that refused and accepted changes (and
+    lateral holds) occur."""
     lane, speed = idm_ego(world)
     if t % 5 == 0:
         g = torch.Generator().manual_seed(t)
-        lane = torch.randint(0, world.road.num_lanes, (world.num_envs,), generator=g)
+        lane = torch.randint(HOLD_LANE, world.road.num_lanes, (world.num_envs,), generator=g)  # holds too
     return lane, speed
 
 

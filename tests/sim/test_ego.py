@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from highway_srl.constants import DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, LANE_WIDTH_M
-from highway_srl.sim import World
-from highway_srl.sim.dynamics import YAW_RATE_MAX
+from highway_srl.sim import HOLD_LANE, World
+from highway_srl.sim.dynamics import MIN_TURN_RADIUS_M, YAW_RATE_MAX
 from sim_helpers import clear_road
 
 
@@ -92,3 +92,39 @@ def test_standing_car_does_not_turn_or_move_sideways():
         world.step(torch.tensor([1 - lane]), torch.tensor([0.0]))
     assert float(world.state.y[0, 0]) == y0
     assert float(world.state.heading[0, 0]) == 0.0
+
+
+@pytest.mark.parametrize("speed", [1.0, 8.0])
+def test_a_hold_stops_the_sideways_motion_where_the_ego_is(speed):
+    """HOLD_LANE mid-change: the heading turns back to 0 no faster than the yaw-rate limit (v / R, at most
+    YAW_RATE_MAX), the centre stays between the lanes (no snap to a lane centre), the target lane is the lane
+    the centre is in (the traffic sees no change), and once aligned the ego drives straight on."""
+    world = _ego_world(speed)
+    s = world.state
+    for _ in range(6 if speed > 4 else 12):  # part way into the change to lane 1
+        world.step(torch.tensor([1]), torch.tensor([speed]))
+    h0, y0 = float(s.heading[0, 0]), float(s.y[0, 0])
+    assert h0 > 0.05 and 0.05 < y0 < LANE_WIDTH_M - 0.05
+    hs, ys = [h0], [y0]
+    for _ in range(40):
+        world.step(torch.tensor([HOLD_LANE]), torch.tensor([speed]))
+        hs.append(float(s.heading[0, 0]))
+        ys.append(float(s.y[0, 0]))
+        assert int(s.target_lane[0, 0]) == int(s.lane[0, 0]) == round(ys[-1] / LANE_WIDTH_M)
+    yaw = min(speed / MIN_TURN_RADIUS_M, YAW_RATE_MAX)
+    assert all(0.0 <= b <= a and a - b <= yaw * DT_S + 1e-6 for a, b in zip(hs, hs[1:]))
+    assert hs[-1] == 0.0 and ys[-1] == ys[-2] == ys[-10]
+    # it went on sideways only while the heading unwound: at most the arc of turning back at the yaw limit
+    assert 0.0 <= ys[-1] - y0 <= speed * DT_S * sum(math.sin(h) for h in hs) + 1e-5
+    assert 0.05 < ys[-1] < LANE_WIDTH_M - 0.05
+    world.step(torch.tensor([0]), torch.tensor([speed]))  # a lane command again: tracking resumes
+    assert float(s.heading[0, 0]) < 0.0
+
+
+def test_a_hold_on_a_settled_ego_changes_nothing_sideways():
+    world = _ego_world(8.0)
+    s = world.state
+    y0 = float(s.y[0, 0])
+    for _ in range(5):
+        world.step(torch.tensor([HOLD_LANE]), torch.tensor([8.0]))
+    assert float(s.y[0, 0]) == y0 and float(s.heading[0, 0]) == 0.0 and int(s.target_lane[0, 0]) == int(s.lane[0, 0])

@@ -12,7 +12,7 @@ from dataclasses import fields
 import pytest
 import torch
 
-from highway_srl.sim import World
+from highway_srl.sim import HOLD_LANE, World
 from highway_srl.sim.ego_driver import idm_ego
 from highway_srl.sim.events import STEP_EVENT_DTYPES
 from highway_srl.sim.processes import slices
@@ -40,6 +40,8 @@ def _commands(world: World, t: int):
     lane, speed = idm_ego(world)
     if t % 9 == 0:  # lane commands now and then, so that changes are made and refused
         lane = (world.ego_lane + 1) % 2
+    if t % 9 == 2:  # and a lateral hold in the middle of a change
+        lane = torch.full_like(lane, HOLD_LANE)
     return lane, speed
 
 
