@@ -261,7 +261,7 @@ class LMRL(SingleDQN):
 
     Cost per step: 1 when the RM state reached is u2 or u4 (a safe-distance rule is violated), COLLISION_COST
     on a collision. Both networks are trained on the same sampled transitions with targets evaluated at the
-    current policy's next action a' = argmax Q_r,online - λ Q_c,online (s'), read from the target networks.
+    policy's next action a' = argmax Q_r - λ Q_c (s') of the target networks (with λ = 0, DQN's max).
     Options: cost_limit, lambda_lr, lambda_init (for experiments; the defaults are the documented values).
     """
 
@@ -295,21 +295,18 @@ class LMRL(SingleDQN):
                mask: torch.Tensor | None = None) -> UpdateStats:
         """members (K,): reward networks (even indices) whose buffers gave batch; their cost networks
         (members + 1) train on the same transitions, toward policy-evaluation targets: the learner's
-        td_target at the next actions chosen here (passed as "next_action" instead of its max over actions)
-        with the cost as the cost networks' reward.
+        td_target at a' = argmax Q_r - λ Q_c of the target networks at s' (passed as the pair's "next_weight"
+        (1, -λ)), with the cost as the cost networks' reward.
         mask (K,) bool: only those reward networks and their cost networks step (the static form).
         Returns the reward networks' stats (the logs' Q values are returns, not costs)."""
         # reward and cost network of each seed side by side (2s, 2s + 1, ...): consecutive rows, which the
         # learner reads in place (DQNLearner.update), and each network's row of every input beside its twin's
         both = torch.stack([members, members + 1], 1).flatten().to(learner.device)
-        with torch.no_grad():
-            x = paired(batch["next_obs"])
-            q_on = learner.member_q(both, x, static=mask is not None)  # (2K, N, 4)
-            lam = self.lam.to(q_on.device)[members.to(q_on.device) // self.members_per_seed]
-            a_next = (q_on[0::2] - lam[:, None, None] * q_on[1::2]).argmax(-1)  # (K, N)
+        lam = self.lam.to(learner.device)[members.to(learner.device) // self.members_per_seed]
         targets = {"obs": paired(batch["obs"]), "action": paired(batch["action"]),
-                   "reward": torch.stack([batch["reward"], batch["cost"]], 1).flatten(0, 1), "next_obs": x,
-                   "done": paired(batch["done"]), "next_action": paired(a_next)}
+                   "reward": torch.stack([batch["reward"], batch["cost"]], 1).flatten(0, 1),
+                   "next_obs": paired(batch["next_obs"]), "done": paired(batch["done"]),
+                   "next_weight": torch.stack([torch.ones_like(lam), -lam], 1)}
         if mask is None:
             return learner.update(both, targets).rows(slice(0, None, 2))
         return learner.update_masked(both, targets, paired(mask)).rows(slice(0, None, 2))

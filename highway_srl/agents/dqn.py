@@ -90,16 +90,23 @@ class UpdateLog:
 
 
 def td_target(q_next: torch.Tensor, reward: torch.Tensor, done: torch.Tensor, gamma: float,
-              allowed: torch.Tensor, next_action: torch.Tensor | None = None) -> torch.Tensor:
+              allowed: torch.Tensor, next_weight: torch.Tensor | None = None) -> torch.Tensor:
     """The TD target of every update, (K, N): y = r + gamma (1 - done) Q_target,m(s', a').
 
     q_next (K, N, out) the target networks' Q-values at s'; reward (K, N); done (K, N) bool (termination only).
-    a' is the max over the member's own actions, allowed (K, out) bool (Algorithm 1), unless next_action
-    (K, N) long names it: a policy's choice, evaluated by the target network (LM-RL's policy evaluation)."""
-    if next_action is None:
-        value = q_next.masked_fill(~allowed.unsqueeze(1), float("-inf")).amax(-1)
-    else:
+    a' is the max over the member's own actions, allowed (K, out) bool (Algorithm 1). A method whose policy
+    scores actions with several networks (LM-RL: Q_r - λ Q_c) names next_weight (G, S): the K = G S members
+    form G groups of S consecutive members, and each group bootstraps from one a' = argmax over the group's
+    first member's allowed actions of sum_s next_weight[g, s] Q_target,s(s', a), the policy's own choice
+    read from the same target networks (with weights (1, 0, ...) the first member's max)."""
+    if next_weight is not None:
+        groups, size = next_weight.shape
+        score = (q_next.unflatten(0, (groups, size)) * next_weight[:, :, None, None]).sum(1)  # (G, N, out)
+        score = score.masked_fill(~allowed[::size].unsqueeze(1), float("-inf"))
+        next_action = score.argmax(-1).repeat_interleave(size, 0)  # (K, N)
         value = q_next.gather(2, next_action.unsqueeze(2)).squeeze(2)
+    else:
+        value = q_next.masked_fill(~allowed.unsqueeze(1), float("-inf")).amax(-1)
     return reward + gamma * (~done).to(value.dtype) * value
 
 
@@ -198,8 +205,8 @@ class DQNLearner:
         batch: "obs" (K, N, obs_dim), "action" (K, N) long (inside the member's set),
         "reward" (K, N), "next_obs" (K, N, obs_dim), "done" (K, N) bool (termination only).
         TD target y = r + gamma (1 - done) max_{a' in A_m} Q_target,m(s', a') (Algorithm 1, `td_target`); a
-        method that evaluates a policy of its own (LM-RL) names its next actions as "next_action" (K, N) long,
-        and a' is that action instead of the max.
+        method whose policy combines several networks (LM-RL) names their weights as "next_weight" (G, S), and
+        a' is that policy's choice instead of each member's max.
         loss = mean over N of (y - Q_m(s, a))^2 (the DQN loss of §2.3), or Huber if configured.
         Returns the per-member loss, mean Q(s, a) and mean |TD error| (UpdateStats, (K,) each), detached.
         Nothing here reads a value back to the host, so on a GPU the call queues work without synchronising.
@@ -259,19 +266,12 @@ class DQNLearner:
         self.target.flat.index_copy_(0, idx, torch.where(sync.unsqueeze(1), new_theta, old_target))
         return UpdateStats(per_member, q_sa.mean(1), (y - q_sa).abs().mean(1))
 
-    @torch.no_grad()
-    def member_q(self, members: torch.Tensor, x: torch.Tensor, static: bool = False) -> torch.Tensor:
-        """Online Q-values of members (K,) long at x (K, N, obs_dim): (K, N, out_dim), not masked. static: the
-        rows gathered without reading members on the host (the static form: update_masked's callers)."""
-        rows = members.tolist() if self.rows_in_place and not static else None
-        return self.online.forward_rows(self._rows_of(self.online, members.to(self.device), rows), x)
-
     @staticmethod
     def _rows_of(net: MLPEnsemble, idx: torch.Tensor, rows: list[int] | None) -> torch.Tensor:
         """The rows (K, P) of net's members idx (K,): a view of net.flat where their host indices rows are
         consecutive and ascending (one member, or LM-RL's reward and cost networks), else a gathered copy: the
-        same values either way (LM-RL's three copies of its two rows a round, 0.6 MB each, were 9% of its
-        training step's time under torch.profiler)."""
+        same values either way (LM-RL's copies of its two rows, 0.6 MB each a round, were 9% of its training
+        step's time under torch.profiler)."""
         if rows and rows == list(range(rows[0], rows[0] + len(rows))):
             return net.flat[rows[0]:rows[0] + len(rows)]
         return net.gather(idx)
@@ -280,7 +280,7 @@ class DQNLearner:
         """td_target of members idx (K,) on batch, from their target networks' rows target_rows (K, P)."""
         q_next = self.target.forward_rows(target_rows, batch["next_obs"])
         return td_target(q_next, batch["reward"], batch["done"], self.config.gamma, self.action_mask[idx],
-                         batch.get("next_action"))
+                         batch.get("next_weight"))
 
     def _adam_step(self, idx: torch.Tensor, theta: torch.Tensor, grad: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """The static update's Adam with per-member gradient-norm clipping on gathered rows theta, grad (K, P),

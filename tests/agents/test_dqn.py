@@ -76,13 +76,27 @@ def test_first_update_minimises_the_squared_td_error_of_algorithm_1_and_reports_
     assert learner.update(idx, batch).loss.sum() < stats.loss.sum()
 
 
-def test_td_target_bootstraps_from_the_best_allowed_action_or_from_the_named_next_action():
+def test_td_target_bootstraps_from_the_best_allowed_action():
     q_next = torch.tensor([[[1.0, 5.0, 3.0, 9.0], [2.0, 0.0, 4.0, 8.0]]])  # (K=1, N=2, 4)
     reward, done = torch.tensor([[1.0, 1.0]]), torch.tensor([[False, True]])
     allowed = torch.tensor([[True, True, True, False]])  # action 3 is outside the member's set
     assert torch.equal(td_target(q_next, reward, done, 0.5, allowed), torch.tensor([[3.5, 1.0]]))
-    named = td_target(q_next, reward, done, 0.5, allowed, next_action=torch.tensor([[3, 0]]))
-    assert torch.equal(named, torch.tensor([[5.5, 1.0]]))  # a policy's choice, even outside the max
+
+
+def test_td_target_of_a_weighted_policy_bootstraps_every_member_of_a_group_from_its_one_choice():
+    # LM-RL's pair (Q_r, Q_c) with λ = 2: scores Q_r - 2 Q_c = [1, -1, 3, -7] at the first s', so a' = 2
+    # (not Q_r's max, 1), and [4, -4, -4, 0] at the second, a' = 0; both networks read Q_target(s', a').
+    q_r = torch.tensor([[1.0, 5.0, 3.0, 9.0], [4.0, 0.0, 2.0, 8.0]])
+    q_c = torch.tensor([[0.0, 3.0, 0.0, 8.0], [0.0, 2.0, 3.0, 4.0]])
+    q_next = torch.stack([q_r, q_c])  # (K=2, N=2, 4)
+    reward = torch.tensor([[1.0, 1.0], [0.0, 10.0]])  # the cost network's reward is the cost
+    done = torch.tensor([[False, False], [False, False]])
+    allowed = torch.ones(2, 4, dtype=torch.bool)
+    y = td_target(q_next, reward, done, 0.5, allowed, next_weight=torch.tensor([[1.0, -2.0]]))
+    assert torch.equal(y, torch.tensor([[1.0 + 0.5 * 3.0, 1.0 + 0.5 * 4.0], [0.0 + 0.5 * 0.0, 10.0 + 0.5 * 0.0]]))
+    # weights (1, 0): the reward network's own max, the DQN target
+    dqn = td_target(q_next, reward, done, 0.5, allowed, next_weight=torch.tensor([[1.0, 0.0]]))
+    assert torch.equal(dqn[0], td_target(q_next[:1], reward[:1], done[:1], 0.5, allowed[:1])[0])
 
 
 def test_update_log_averages_over_member_updates_and_has_nothing_before_the_first():
