@@ -21,7 +21,10 @@ run seeds-2 2 moe-rm-srl two-lane,merge
 run seeds-2 2 moe-rm-srl exit,adv-merge
 run seeds-0-1 0,1 moe-rm-srl adv-exit,multi-lane
 run seeds-0-1 0,1 moe-rm-srl adv-two-lane,adv-multi-lane  # restarted from scratch on a new machine
-# next (in training at the last stop): seeds-2 adv-exit,multi-lane; seeds-2 adv-two-lane,adv-multi-lane;
-# then the baselines scene by scene: seeds-0-1 rl,sr-rl two-lane; seeds-0-1 rm-rl,mp-rl two-lane
+run seeds-2 2 moe-rm-srl adv-exit,multi-lane
+# next (in training at the last stop): seeds-2 adv-two-lane,adv-multi-lane;
+# then the baselines scene by scene: seeds-0-1 rl,sr-rl two-lane; seeds-0-1 rm-rl,mp-rl two-lane;
+# LM-RL's jobs from a worktree at 92e3795 or later (its a' from the target networks; every other method's
+# behaviour pin is 1d3a74e's there)
 # next, under the safe profile (PROFILES=safe CAMPAIGN=../campaign-safe, a worktree at be654c2 or later):
 #   run safe-seeds-0-1 0,1 moe-rm-srl two-lane,merge   and on through every scene, then sr-rl,mp-rl
