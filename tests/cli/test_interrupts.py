@@ -22,6 +22,13 @@ STUDY = ["reproduce", "--budget", "smoke", "--jobs", "2", "--methods", "moe-rm-s
 pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads child processes from /proc")
 
 
+def as_from_a_terminal() -> None:
+    """In the child before it runs: Ctrl-C's default action, as a shell at a terminal leaves it. A suite started
+    in the background of a non-interactive shell (`cmd &`) inherits SIGINT ignored, and Python started so
+    keeps ignoring it, which is not what these tests are about."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def children(pid: int) -> list[int]:
     """The processes whose parent is pid."""
     found = []
@@ -50,7 +57,8 @@ def stopped(argv, ready, sig=signal.SIGINT, whole_group=True, timeout=240, entry
     stderr once every process of its group is gone."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([*map(str, path), str(ROOT)]), "OMP_NUM_THREADS": "1"}
     proc = subprocess.Popen([sys.executable, *map(str, entry), *map(str, argv)], env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=as_from_a_terminal)
     try:
         deadline = time.monotonic() + timeout
         while not ready(proc.pid):
@@ -174,7 +182,7 @@ def test_importing_the_library_leaves_the_signals_to_the_program():
     code = ("import signal, highway_srl; print(signal.getsignal(signal.SIGINT) is signal.default_int_handler, "
             "signal.getsignal(signal.SIGTERM) is signal.SIG_DFL)")
     done = subprocess.run([sys.executable, "-c", code], env={**os.environ, "PYTHONPATH": str(ROOT)},
-                          capture_output=True, text=True, timeout=240)
+                          capture_output=True, text=True, timeout=240, preexec_fn=as_from_a_terminal)
     assert done.stdout.split() == ["True", "True"], done.stderr
 
 
