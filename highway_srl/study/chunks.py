@@ -232,4 +232,6 @@ def _merged_state(parts: list[Results], jobs: dict) -> dict:
             "machine": states[-1].get("machine", {}), "version": _joined(st.get("version") for st in states),
             "commit": _joined(st.get("commit") for st in states),
             "chunks": [{"name": p.root.name, "seeds": p.state.get("budget_config", {}).get("seeds"),
-                        "commit": p.state.get("commit")} for p in parts]}
+                        "commit": _joined([p.state.get("commit")]  # and every commit a call of it ran
+                                          + [i.get("commit") for i in p.state.get("invocations", [])])}
+                       for p in parts]}

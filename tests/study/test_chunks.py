@@ -104,3 +104,15 @@ def test_a_seed_in_two_chunks_or_chunks_of_other_settings_are_one_line_errors(tm
     err = _error(capsys, root)
     assert len(err) == 1 and "chunks 'seeds-0-1' and 'seeds-1-2' differ in steps" in err[0]
     assert not (root / "report.md").exists()
+
+
+def test_a_chunk_continued_from_another_commit_names_both(tmp_path):
+    # a chunk whose later call ran from another worktree (a method re-pinned there) names every commit it ran
+    root = tmp_path / "paper"
+    folder = _chunk(root, (0, 1))
+    state = json.loads((folder / "study.json").read_text())
+    first = state.get("commit") or "aaaaaaa"
+    state["commit"] = first
+    state["invocations"].append({**state["invocations"][-1], "commit": "bbbbbbb"})
+    (folder / "study.json").write_text(json.dumps(state))
+    assert chunks.load_study(root).state["chunks"][0]["commit"] == f"{first}, bbbbbbb"
