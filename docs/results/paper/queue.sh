@@ -23,9 +23,10 @@ run seeds-0-1 0,1 moe-rm-srl adv-exit,multi-lane
 run seeds-0-1 0,1 moe-rm-srl adv-two-lane,adv-multi-lane  # restarted from scratch on a new machine
 run seeds-2 2 moe-rm-srl adv-exit,multi-lane
 run seeds-2 2 moe-rm-srl adv-two-lane,adv-multi-lane
-# done: seeds-0-1 rl,sr-rl two-lane; seeds-0-1 rm-rl,mp-rl two-lane; seeds-0-1 lm-rl two-lane
-# next (in training at the last stop): seeds-0-1 et-rl,rule-based two-lane;
-# then merge, exit and the adversarial scenes, then seed 2 of every baseline;
+# done: seeds-0-1 rl,sr-rl two-lane; seeds-0-1 rm-rl,mp-rl two-lane; seeds-0-1 lm-rl two-lane;
+#       seeds-0-1 et-rl,rule-based two-lane; seeds-0-1 rl merge
+# next (in training at the last stop): seeds-0-1 sr-rl merge; then mp-rl,et-rl merge; lm-rl merge;
+# then exit and the adversarial scenes, then seed 2 of every baseline;
 # LM-RL's jobs from a worktree at 92e3795 or later (its a' from the target networks; every other method's
 # behaviour pin is 1d3a74e's there)
 # next, under the safe profile (PROFILES=safe CAMPAIGN=../campaign-safe, a worktree at be654c2 or later):
