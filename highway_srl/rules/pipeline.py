@@ -52,6 +52,7 @@ from highway_srl.rules.mappings import (
 )
 from highway_srl.rules.avoidable import proper_lateral_speed
 from highway_srl.rules.lanes_by_body import body_room, body_slots, with_bodies
+from highway_srl.rules.lateral import entry_response
 from highway_srl.rules.observation import build_observation, ego_progress_feature
 from highway_srl.rules.profiles import control_profile
 from highway_srl.rules.reward_machine import (D_ACC_M, HighwayPropositions, desired_speed, highway_reward_machine,
@@ -374,23 +375,6 @@ class SafetyLayer:
         return front_room(gaps, veh.vx, sv2_joins, self.standstill_gap_m, self.sv_brake, extra)
 
     # ------------------------------------------------------------------ act
-    def _entry(self, m, snap, previous: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """back_out_of_entry and hold_lateral: (the held target, local; where to hold (B,) bool or None)."""
-        # ours: the centre has crossed, the body not yet: the lane being entered turning unsafe (a car
-        # turning into it) sends the ego back where it came from, if that lane is safe; settling on
-        # toward the lane's centre met the car (RSS: stop moving sideways toward it)
-        w = self.road.lane_width_m
-        y_local = snap.ego_y - m.lanes.base_lane * w
-        body = m.m_l_ego | crosses_line(y_local, snap.ego_heading, w)
-        entering = (previous == m.lanes.c_id) & ~(m.r_star[:, 0] & m.r_star[:, 2])
-        back = entering & body & m.r_star[:, 1] & m.r_star[:, 3] & self.back_out_of_entry
-        previous = torch.where(back, 1 - m.lanes.c_id, previous)
-        if not self.hold_lateral:
-            return previous, None
-        # ours: no way back (or from a lane the model no longer holds): hold
-        outer = crosses_line(y_local + w, snap.ego_heading, w) | crosses_line(y_local - w, snap.ego_heading, w)
-        return previous, entering & (body | outer) & ~back
-
     def act(self, action: torch.Tensor, use_second: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Action and control mapping (Eqs. 34-35): (target_lane (B,) long global, target_speed (B,) m/s).
 
@@ -406,7 +390,7 @@ class SafetyLayer:
         veh = m.vehicles
         dx3 = snap.ego_x - veh.x[:, 2]
         dx4 = snap.ego_x - veh.x[:, 3]
-        previous, hold = None, None
+        previous, backing, hold = None, None, None
         if self.hold_lane_change:
             # "the lateral plan remains unchanged": Faster/Idle/Slower keep the target of a change under way
             previous = (self.target_lane - m.lanes.base_lane).clamp(0, 1)
@@ -416,11 +400,14 @@ class SafetyLayer:
                 still_safe = m.r_star[:, 1] & m.r_star[:, 3]
                 previous = torch.where(still_safe, previous, m.lanes.c_id.long())
             if self.back_out_of_entry or self.hold_lateral:
-                previous, hold = self._entry(m, snap, previous)
+                previous, backing, hold = entry_response(m, snap, previous, self.road.lane_width_m,
+                                                         self.back_out_of_entry, self.hold_lateral)
         t_local = target_lane_local(
             action, m.lanes.c_id, m.m_l_ego, m.r_star[:, 2], m.r_star[:, 3], dx3, dx4, previous_target=previous,
             check=not self.static,
         )
+        if backing is not None:
+            t_local = torch.where(backing, previous, t_local)
         lane = m.lanes.base_lane + t_local
         ego_lane = snap.ego_lane.long()
         ok = (lane == ego_lane) | crossing_allowed(self.road, ego_lane, lane, snap.ego_x)
@@ -442,7 +429,9 @@ class SafetyLayer:
             last = (action == IDLE) & ~m.r_star[:, 0]
             speed = torch.where(last, stopping_speed(speed_now, m.front_room_m, self.ego_brake), speed)
         if hold is not None:  # RSS's lateral response: stop moving sideways, braking as far as that needs
-            hold = hold & (lane == m.lanes.base_lane + m.lanes.c_id)
-            speed = torch.where(hold, torch.minimum(speed, proper_lateral_speed(speed_now, snap.ego_heading)), speed)
+            hold, going_back = hold
+            in_lane = lane == m.lanes.base_lane + m.lanes.c_id
+            hold, brake = hold & in_lane, (hold & in_lane) | (going_back & ~in_lane)
+            speed = torch.where(brake, torch.minimum(speed, proper_lateral_speed(speed_now, snap.ego_heading)), speed)
             lane = torch.where(hold, HOLD_LANE, lane)
         return lane, speed

@@ -26,10 +26,10 @@ class ControlProfile:
     ego_body_straddles: the straddle grouping also holds while the ego's body crosses the line; lanes_by_body:
     the nearest cars whose bodies reach into the pair's lanes join those lanes' rules (rules.lanes_by_body);
     back_out_of_entry: an ego whose body still crosses the line into the lane it is entering goes back to the
-    lane it came from when the one it enters turns unsafe and that one is safe; hold_lateral: where it cannot go
+    lane it came from when the one it enters turns unsafe and that one is safe, whatever the action; hold_lateral: where it cannot go
     back (that lane unsafe too, or one the model no longer holds), it stops moving sideways instead (the
     simulator's HOLD_LANE), braking as far as RSS's lateral response needs (rules.avoidable.
-    proper_lateral_speed). docs/paper-notes.md, "Profiles: paper vs safe", gives each with the crash that
+    proper_lateral_speed), also while going back heading into that lane (rules.lateral). docs/paper-notes.md, "Profiles: paper vs safe", gives each with the crash that
     motivated it.
     """
 

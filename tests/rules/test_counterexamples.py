@@ -26,7 +26,12 @@ OPEN: dict[str, str] = {}
 # cases that still collide under the safe profile, replayed today, and the verdict on that collision: the ego
 # went back to the lane it came from as the car turned in (moving away from it: RSS's proper lateral response)
 # and its rear corner, the body turning about its centre in the simulator, swung 1.6 m into that car's nose
-REPLAY_UNAVOIDABLE = {"safe-far-lane-cut-in-while-settling-multi-lane-A-adversarial.json": SIDE_SWIPE}
+REPLAY_UNAVOIDABLE = {"safe-far-lane-cut-in-while-settling-multi-lane-A-adversarial.json": SIDE_SWIPE,
+                      # braking sideways while going back, it stood; the car cutting in from two lanes over hit it
+                      "safe-going-back-at-walking-pace-into-a-cut-in-multi-lane-A-adversarial.json": SIDE_SWIPE,
+                      # the same, merge A: it went back braking sideways to a stand over the line and was hit there
+                      # (before the sideways brake it drove on out of the car's way: an escape RSS does not promise)
+                      "safe-far-lane-cut-in-while-settling-merge-A-adversarial.json": SIDE_SWIPE}
 # cases an addition prevents whose collision, with the addition off, the verdict judges unavoidable: the
 # ego braked (laterally, by braking) from RSS's blame time on while a car from two lanes over turned in level
 # with it
@@ -36,6 +41,15 @@ PREVENTED = dict.fromkeys(["safe-greedy-far-lane-cut-in-while-settling-multi-lan
 # safe-profile holes closed by making an addition stricter, where switching the addition off is no test (the
 # old rule is not selectable): what changed
 STRENGTHENED = {
+    # adversarial multi-lane and merge A, multi-lane C: a slow ego going back from a lane turning unsafe with its
+    # heading still into it (up to 0.6 rad; it unwinds at v / 4 m rad/s) went on sideways into the car cutting in
+    **dict.fromkeys([f"safe-{kind}going-back-at-walking-pace-into-a-cut-in-{where}-adversarial.json"
+                     for kind, where in (("", "merge-A"), ("learned-", "multi-lane-A"))]
+                    + ["safe-going-back-from-a-standing-start-multi-lane-C-adversarial.json"],
+                    "hold_lateral brakes sideways also while the ego goes back (pipeline.SafetyLayer._entry)"),
+    # adversarial merge C: going back, a LaneChange on the line (Eq. 35, both rears safe: C_ID) re-entered the lane
+    "safe-lane-change-re-entered-a-lane-turning-unsafe-merge-C-adversarial.json": "back_out_of_entry keeps the "
+                                                                                "way back against LaneChange",
     # nominal exit C: a change begun standing 10.7 m before the gore, then accelerated through, aborted late
     "safe-greedy-straddling-the-gore-exit-C.json": "finish_in_window counts the ego accelerating during the change "
                                                    "(mappings.change_run_m), not its speed alone",
@@ -72,8 +86,10 @@ CLOSED_BY = {
                      "safe-greedy-tail-over-the-line-multi-lane-F.json",
                      "safe-greedy-tail-over-the-line-merge-F.json"], {"reaching_over_is_near": False, **NOT_BY_BODY}),
     # multi-lane: a car of the lane the acting two-lane model does not hold, reaching into the ego's path
-    **dict.fromkeys(["safe-cut-in-from-the-unseen-lane-multi-lane-C-adversarial.json",
-                     "safe-greedy-unseen-lane-tail-over-the-line-multi-lane-F.json"], {"watch_third_lane": False, **NOT_BY_BODY}),
+    # (the second also by going back with the sideways brake: both off too)
+    "safe-cut-in-from-the-unseen-lane-multi-lane-C-adversarial.json": {"watch_third_lane": False, **NOT_BY_BODY},
+    "safe-greedy-unseen-lane-tail-over-the-line-multi-lane-F.json": {"watch_third_lane": False, **NOT_BY_BODY,
+                                                                     "back_out_of_entry": False, "hold_lateral": False},
     # an ego drifting on after an aborted change, its nose over the line, Eq. 31 flagging none of its corners
     "safe-nose-over-the-line-after-an-aborted-change-multi-lane-F.json": {"ego_body_straddles": False},
     # a car stopped mid-change across the line, its tail in the ego's lane, behind the nearest car of its
@@ -84,13 +100,14 @@ CLOSED_BY = {
     # the ego's centre in the lane it was entering, its body still over the line, when a car from two lanes over
     # turned into that lane; and an ego creeping on beside a car standing across the line, whose body, turning
     # about its centre, swung into that car's nose: going back to the lane it came from answers both
-    "safe-far-lane-cut-in-while-settling-merge-A-adversarial.json": {"back_out_of_entry": False, "hold_lateral": False},
     "safe-creeping-beside-a-car-standing-across-the-line-multi-lane-F-adversarial.json": {"back_out_of_entry": False},
     # a slow ego entering a lane at up to 0.6 rad, with no way back, while a car from two lanes over turned into
     # that lane: it settled on into the car (exit A), or gave its change up and stood over the line (multi-lane
     # A); holding its lateral position and braking as far as RSS's lateral response needs answers both
-    **dict.fromkeys(["safe-far-lane-cut-in-while-settling-exit-A-adversarial.json",
-                     "safe-far-lane-cut-in-while-settling-back-multi-lane-A-adversarial.json"], {"hold_lateral": False}),
+    "safe-far-lane-cut-in-while-settling-exit-A-adversarial.json": {"hold_lateral": False},
+    # (going back also keeps its target against Eq. 35's LaneChange now, which closes this one too)
+    "safe-far-lane-cut-in-while-settling-back-multi-lane-A-adversarial.json": {"hold_lateral": False,
+                                                                              "back_out_of_entry": False},
 }
 
 
