@@ -8,7 +8,12 @@ multi-lane falsifier found an ego in the middle lane meeting a lane-2 car turnin
 acted on the pair (0, 1), and an ego changing from lane 2 into lane 1 meeting the tail of a lane-0 car
 standing mid-change. Here the third lane's nearest cars ahead and behind join the near lane's rules: R_SV
 of the near lane's slot holds only if it holds for the joining car too (Eq. 26 against the same ego), and
-its room ahead counts for Idle as the last resort. The observation (the 37 inputs) is unchanged.
+its room ahead counts for Idle as the last resort. The same holds the other way round: where the ego's own
+body reaches over the line into the third lane (an ego settling back into the middle lane at walking pace,
+its body still 0.9 m into lane 2 while it acts on the pair (0, 1)), the third lane's cars are cars of the
+ego's lane; the nominal greedy sweep found such an ego creeping into the tail of a car standing in lane 2
+(`tests/rules/cases/safe-greedy-reaching-over-into-the-lane-the-model-does-not-hold-*`).
+The observation (the 37 inputs) is unchanged.
 """
 
 from __future__ import annotations
@@ -56,7 +61,10 @@ def third_lane_cars(snap: Snapshot, lanes: LaneModel, lane_width_m: float) -> Th
     y = snap.sv_y[:, cols] - frame[:, None]
     heading = snap.sv_heading[:, cols]
     reaches = near_boundary(y, heading, lane_width_m=lane_width_m) | crosses_line(y, heading, lane_width_m)
-    joins = reaches & snap.sv_valid[:, cols].bool() & (third >= 0)[:, None]
+    # the ego's own body reaching over into the third lane makes that lane's cars cars of the ego's lane
+    ego_in_near = near - base == lanes.c_id
+    ego_reaches = ego_in_near & crosses_line(snap.ego_y - frame, snap.ego_heading, lane_width_m)
+    joins = (reaches | ego_reaches[:, None]) & snap.sv_valid[:, cols].bool() & (third >= 0)[:, None]
     dx = snap.sv_x[:, cols] - snap.ego_x[:, None]
     gaps = torch.stack([dx[:, 0], -dx[:, 1]], 1) - VEHICLE_LENGTH_M
     return ThirdLaneCars(joins, gaps, snap.sv_vx[:, cols], (near - base != lanes.c_id).long())

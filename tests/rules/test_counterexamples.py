@@ -46,7 +46,7 @@ STRENGTHENED = {
     **dict.fromkeys([f"safe-{kind}going-back-at-walking-pace-into-a-cut-in-{where}-adversarial.json"
                      for kind, where in (("", "merge-A"), ("learned-", "multi-lane-A"))]
                     + ["safe-going-back-from-a-standing-start-multi-lane-C-adversarial.json"],
-                    "hold_lateral brakes sideways also while the ego goes back (pipeline.SafetyLayer._entry)"),
+                    "hold_lateral brakes sideways also while the ego goes back (rules.lateral.entry_response)"),
     # adversarial merge C: going back, a LaneChange on the line (Eq. 35, both rears safe: C_ID) re-entered the lane
     "safe-lane-change-re-entered-a-lane-turning-unsafe-merge-C-adversarial.json": "back_out_of_entry keeps the "
                                                                                 "way back against LaneChange",
@@ -88,6 +88,9 @@ CLOSED_BY = {
     # multi-lane: a car of the lane the acting two-lane model does not hold, reaching into the ego's path
     # (the second also by going back with the sideways brake: both off too)
     "safe-cut-in-from-the-unseen-lane-multi-lane-C-adversarial.json": {"watch_third_lane": False, **NOT_BY_BODY},
+    # nominal multi-lane E: an ego settling back into the middle lane at walking pace, its body 0.9 m into lane 2
+    # while it acted on the pair (0, 1), crept into the tail of a car standing in lane 2
+    "safe-greedy-reaching-over-into-the-lane-the-model-does-not-hold-multi-lane-E.json": {"watch_third_lane": False},
     "safe-greedy-unseen-lane-tail-over-the-line-multi-lane-F.json": {"watch_third_lane": False, **NOT_BY_BODY,
                                                                      "back_out_of_entry": False, "hold_lateral": False},
     # an ego drifting on after an aborted change, its nose over the line, Eq. 31 flagging none of its corners
