@@ -243,6 +243,23 @@ def test_a_third_lane_car_reaching_into_the_near_lane_joins_its_rules_only_under
         assert p.mask[0, FASTER].item(), name  # the ego's own lane is free
 
 
+def test_the_egos_body_over_the_line_into_the_third_lane_makes_its_cars_the_egos_only_under_safe(hand_world):
+    """watch_third_lane, the other way round: the traced nominal multi-lane E case. The ego in the middle lane
+    at 2 m/s, heading 0, centre y 5.15 (its body 0.9 m over the line into lane 2) acts on the pair (0, 1);
+    a car stands in lane 2, 6.4 m ahead (1.4 m bumper to bumper). Lane 1 ahead is free, so paper and safe
+    without the addition allow Faster; under safe the car is the ego's lane's car ahead: R*1 = 0, and Idle's
+    last-resort room is 1.4 - 1 m."""
+    road = make_road("multi-lane")
+    scene = [{"ego": (0.0, 5.15, 2.0, 0.0), "svs": [(6.4, 2 * W, 0.0, 0.0)]}]
+    cases = {**layers(road), "safe without it": SafetyLayer(road, watch_third_lane=False)}
+    for name, layer in cases.items():
+        p = layer.observe(hand_world(road, scene)).primary
+        assert (p.lanes.base_lane.item(), p.lanes.c_id.item()) == (0, 1), name
+        assert p.mask[0, FASTER].item() is (name != "safe"), name
+    room = cases["safe"].last.primary.front_room_m
+    assert room.item() == pytest.approx(6.4 - 5.0 - 1.0, abs=1e-5)
+
+
 def test_a_car_across_the_line_behind_the_nearest_of_its_lane_joins_the_egos_lane_only_under_safe(hand_world):
     """lanes_by_body: the traced multi-lane D case on two lanes. A car stopped mid-change at 0.6 rad, centre
     y 2.27 in lane 1, its tail 1.7 m into lane 0, 12 m ahead of an ego at 10 m/s; a car of lane 1 at 9 m/s
