@@ -51,6 +51,7 @@ from highway_srl.rules.mappings import (
     target_speed,
 )
 from highway_srl.rules.avoidable import proper_lateral_speed
+from highway_srl.rules.body_swing import NearCars, near_cars, swing_guard
 from highway_srl.rules.lanes_by_body import body_room, body_slots, with_bodies
 from highway_srl.rules.lateral import entry_response
 from highway_srl.rules.observation import build_observation, ego_progress_feature
@@ -88,6 +89,7 @@ class ModelStep:
     vehicles: Vehicles
     lanes: LaneModel
     front_room_m: torch.Tensor | None
+    near: NearCars | None  # every car the model's queries returned, for hold_lateral's body swing
 
     def scoring_r_rm(self) -> torch.Tensor:
         """(B,) r_RM of the paper's mapped rules, what every method's episodes are scored with (the RM return
@@ -358,8 +360,9 @@ class SafetyLayer:
             rm_state=u,
             lane_width_m=w,
         )
+        near = near_cars(veh, third, bodies) if self.hold_lateral else None
         return ModelStep(obs, mask, u, r_rm, r_sv, r_star, m_l_ego, t_id, v_star, speed_ratio(ego_vx, v_star),
-                         gaps, veh, lanes, room)
+                         gaps, veh, lanes, room, near)
 
     def _front_room(self, gaps: torch.Tensor, veh: Vehicles, m_l_sv: torch.Tensor, m_l_ego: torch.Tensor,
                     cars, slots) -> torch.Tensor:
@@ -387,9 +390,6 @@ class SafetyLayer:
             raise RuntimeError("call observe(world) before act(action)")
         m = self.last.select(use_second)
         snap = self.last.snapshot
-        veh = m.vehicles
-        dx3 = snap.ego_x - veh.x[:, 2]
-        dx4 = snap.ego_x - veh.x[:, 3]
         previous, backing, hold = None, None, None
         if self.hold_lane_change:
             # "the lateral plan remains unchanged": Faster/Idle/Slower keep the target of a change under way
@@ -402,10 +402,9 @@ class SafetyLayer:
             if self.back_out_of_entry or self.hold_lateral:
                 previous, backing, hold = entry_response(m, snap, previous, self.road.lane_width_m,
                                                          self.back_out_of_entry, self.hold_lateral)
-        t_local = target_lane_local(
-            action, m.lanes.c_id, m.m_l_ego, m.r_star[:, 2], m.r_star[:, 3], dx3, dx4, previous_target=previous,
-            check=not self.static,
-        )
+        dx34 = snap.ego_x[:, None] - m.vehicles.x[:, 2:4]  # Eq. 35's SV3 and SV4 offsets
+        t_local = target_lane_local(action, m.lanes.c_id, m.m_l_ego, m.r_star[:, 2], m.r_star[:, 3], dx34[:, 0],
+                                    dx34[:, 1], previous_target=previous, check=not self.static)
         if backing is not None:
             t_local = torch.where(backing, previous, t_local)
         lane = m.lanes.base_lane + t_local
@@ -434,4 +433,6 @@ class SafetyLayer:
             hold, brake = hold & in_lane, (hold & in_lane) | (going_back & ~in_lane)
             speed = torch.where(brake, torch.minimum(speed, proper_lateral_speed(speed_now, snap.ego_heading)), speed)
             lane = torch.where(hold, HOLD_LANE, lane)
+        if m.near is not None:  # ... and no corner of the body swings toward a car within RSS's margin
+            lane = swing_guard(snap, m.near, lane, speed, self.road.lane_width_m)
         return lane, speed

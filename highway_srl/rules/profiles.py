@@ -29,7 +29,9 @@ class ControlProfile:
     lane it came from when the one it enters turns unsafe and that one is safe, whatever the action; hold_lateral: where it cannot go
     back (that lane unsafe too, or one the model no longer holds), it stops moving sideways instead (the
     simulator's HOLD_LANE), braking as far as RSS's lateral response needs (rules.avoidable.
-    proper_lateral_speed), also while going back heading into that lane (rules.lateral). docs/paper-notes.md, "Profiles: paper vs safe", gives each with the crash that
+    proper_lateral_speed), also while going back heading into that lane (rules.lateral), and it holds where a
+    command would swing a corner of its body (turning about its centre) within RSS's lateral margin of a car
+    (rules.body_swing). docs/paper-notes.md, "Profiles: paper vs safe", gives each with the crash that
     motivated it.
     """
 

@@ -179,7 +179,7 @@ class RawSafetyLayer:
         step = RawModelStep(
             obs=obs, mask=mask, rm_state=u, r_rm=r_rm, r_sv=r_sv, r_star=metric.r_star, m_l_ego=m_l, t_id=target,
             v_star=v_star, speed_ratio=metric.speed_ratio, gaps_m=gaps, vehicles=veh, lanes=lanes,
-            front_room_m=metric.front_room_m, mask5=mask5,
+            front_room_m=metric.front_room_m, near=None, mask5=mask5,
             lane_left=torch.where(crossing_allowed(road, ego_lane, left, x), left, ego_lane),
             lane_right=torch.where(crossing_allowed(road, ego_lane, right, x), right, ego_lane),
             mapped_r_rm=metric.r_rm,

@@ -89,6 +89,24 @@ def integrate_speed(v: torch.Tensor, accel: torch.Tensor, dt: float, ego_v_max: 
     return v_new, v_mean
 
 
+def steer(y: torch.Tensor, h: torch.Tensor, v: torch.Tensor, y_t: torch.Tensor) -> torch.Tensor:
+    """The heading after one step of the lateral controller: y, h, v the car's lateral position (m), heading
+    (rad) and speed (m/s) at the start of the step, y_t the line it tracks (m). Shared by lateral() and the
+    rule layer's prediction of the ego's next pose (rules.body_swing)."""
+    e_y = y_t - y
+    vy_d = (K_Y * e_y).clamp(-VY_MAX_MPS, VY_MAX_MPS)
+    v_safe = v.clamp(min=0.5)
+    sin_max = torch.sin((LOW_SPEED_VY_MPS / v_safe).clamp(HEADING_MAX_RAD, HEADING_MAX_LOW_RAD))
+    # never steer further than can be unwound within the remaining lateral error: turning back from
+    # heading h on a circle of radius R moves the car R (1 - cos h) sideways
+    radius = UNWIND_MARGIN * torch.clamp(v / YAW_RATE_MAX, min=MIN_TURN_RADIUS_M)
+    cos_u = (1.0 - e_y.abs() / radius).clamp(min=0.0)
+    sin_max = torch.minimum(sin_max, torch.sqrt(1.0 - cos_u * cos_u))
+    heading_d = torch.asin(torch.maximum(torch.minimum(vy_d / v_safe, sin_max), -sin_max))
+    yaw_max = (v / MIN_TURN_RADIUS_M).clamp(max=YAW_RATE_MAX)
+    return h + torch.maximum(torch.minimum(K_HEADING * (heading_d - h), yaw_max), -yaw_max) * DT_S
+
+
 def lateral(s: WorldState, road: Road, v_mid: torch.Tensor, x_old: torch.Tensor, static: bool = False,
             hold: torch.Tensor | None = None) -> None:
     """Lateral tracking and the lateral part of the integration, for the cars that are not settled in
@@ -105,19 +123,7 @@ def lateral(s: WorldState, road: Road, v_mid: torch.Tensor, x_old: torch.Tensor,
     y_t = tgt.float() * w
     if hold is not None:
         y_t = torch.where(take_flat(hold, flat), y, y_t)
-    e_y = y_t - y
-    vy_d = (K_Y * e_y).clamp(-VY_MAX_MPS, VY_MAX_MPS)
-    v_safe = v.clamp(min=0.5)
-    sin_max = torch.sin((LOW_SPEED_VY_MPS / v_safe).clamp(HEADING_MAX_RAD, HEADING_MAX_LOW_RAD))
-    # never steer further than can be unwound within the remaining lateral error: turning back from
-    # heading h on a circle of radius R moves the car R (1 - cos h) sideways
-    radius = UNWIND_MARGIN * torch.clamp(v / YAW_RATE_MAX, min=MIN_TURN_RADIUS_M)
-    cos_u = (1.0 - e_y.abs() / radius).clamp(min=0.0)
-    sin_max = torch.minimum(sin_max, torch.sqrt(1.0 - cos_u * cos_u))
-    heading_d = torch.asin(torch.maximum(torch.minimum(vy_d / v_safe, sin_max), -sin_max))
-    yaw_max = (v / MIN_TURN_RADIUS_M).clamp(max=YAW_RATE_MAX)
-    turn = torch.maximum(torch.minimum(K_HEADING * (heading_d - h), yaw_max), -yaw_max) * DT_S
-    h = h + turn
+    h = steer(y, h, v, y_t)
     vm = take_flat(v_mid, flat)
     x = take_flat(x_old, flat) + vm * torch.cos(h) * DT_S
     y = y + vm * torch.sin(h) * DT_S

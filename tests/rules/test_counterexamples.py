@@ -23,12 +23,9 @@ CASES = sorted((Path(__file__).parent / "cases").glob("*.json"))
 # over cut in beside it, were closed by the lateral hold (hold_lateral, below) and RSS's blame time in the
 # verdict (rules.avoidable.lateral_danger_from).
 OPEN: dict[str, str] = {}
-# cases that still collide under the safe profile, replayed today, and the verdict on that collision: the ego
-# went back to the lane it came from as the car turned in (moving away from it: RSS's proper lateral response)
-# and its rear corner, the body turning about its centre in the simulator, swung 1.6 m into that car's nose
-REPLAY_UNAVOIDABLE = {"safe-far-lane-cut-in-while-settling-multi-lane-A-adversarial.json": SIDE_SWIPE,
-                      # braking sideways while going back, it stood; the car cutting in from two lanes over hit it
-                      "safe-going-back-at-walking-pace-into-a-cut-in-multi-lane-A-adversarial.json": SIDE_SWIPE,
+# cases that still collide under the safe profile, replayed today, and the verdict on that collision: braking
+# sideways while going back, the ego stood; the car cutting in from two lanes over hit it
+REPLAY_UNAVOIDABLE = {"safe-going-back-at-walking-pace-into-a-cut-in-multi-lane-A-adversarial.json": SIDE_SWIPE,
                       # the same, merge A: it went back braking sideways to a stand over the line and was hit there
                       # (before the sideways brake it drove on out of the car's way: an escape RSS does not promise)
                       "safe-far-lane-cut-in-while-settling-merge-A-adversarial.json": SIDE_SWIPE}
@@ -38,6 +35,10 @@ REPLAY_UNAVOIDABLE = {"safe-far-lane-cut-in-while-settling-multi-lane-A-adversar
 PREVENTED = dict.fromkeys(["safe-greedy-far-lane-cut-in-while-settling-multi-lane-B-adversarial.json",
                            "safe-greedy-far-lane-cut-in-while-settling-multi-lane-C-adversarial.json"],
                           {"back_out_of_entry": False, "hold_lateral": False})
+# multi-lane A: the ego went back to the lane it came from as the car turned in (moving away from it: RSS's
+# proper lateral response) and its rear corner, the body turning about its centre in the simulator, swung
+# 1.6 m into that car's nose; hold_lateral's body-swing guard (rules.body_swing) holds the lane instead
+PREVENTED["safe-far-lane-cut-in-while-settling-multi-lane-A-adversarial.json"] = {"hold_lateral": False}
 # safe-profile holes closed by making an addition stricter, where switching the addition off is no test (the
 # old rule is not selectable): what changed
 STRENGTHENED = {
@@ -100,10 +101,14 @@ CLOSED_BY = {
     "safe-greedy-across-the-line-behind-the-nearest-multi-lane-D.json": NOT_BY_BODY,
     **dict.fromkeys([f"safe-greedy-across-the-line-behind-the-nearest-{where}.json" for where in ("merge-B", "exit-E")],
                     {**NOT_BY_BODY, "hold_lateral": False}),  # the hold answers them too
-    # the ego's centre in the lane it was entering, its body still over the line, when a car from two lanes over
-    # turned into that lane; and an ego creeping on beside a car standing across the line, whose body, turning
-    # about its centre, swung into that car's nose: going back to the lane it came from answers both
-    "safe-creeping-beside-a-car-standing-across-the-line-multi-lane-F-adversarial.json": {"back_out_of_entry": False},
+    # an ego creeping on beside a car standing across the line, whose body, turning about its centre, swung into
+    # that car's nose: going back to the lane it came from answers it, and so does hold_lateral's body swing
+    # (rules.body_swing: no part of the body moves toward a car within RSS's lateral margin)
+    "safe-creeping-beside-a-car-standing-across-the-line-multi-lane-F-adversarial.json": {"back_out_of_entry": False,
+                                                                                         "hold_lateral": False},
+    # adversarial multi-lane F (the 07b024a sweep): a car that had cut in stood behind-beside the ego, its nose 6 cm
+    # from the ego's flank; the ego creeping off toward the far lane swung its rear into it (the body swing)
+    "safe-swung-its-flank-into-a-car-standing-behind-beside-multi-lane-F-adversarial.json": {"hold_lateral": False},
     # a slow ego entering a lane at up to 0.6 rad, with no way back, while a car from two lanes over turned into
     # that lane: it settled on into the car (exit A), or gave its change up and stood over the line (multi-lane
     # A); holding its lateral position and braking as far as RSS's lateral response needs answers both
