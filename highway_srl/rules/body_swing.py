@@ -19,10 +19,9 @@ from dataclasses import dataclass
 
 import torch
 
-from highway_srl.constants import (DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, V_MAX_MPS, VEHICLE_LENGTH_M,
-                                   VEHICLE_WIDTH_M)
+from highway_srl.constants import DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, V_MAX_MPS
 from highway_srl.rules.avoidable import LAT_MARGIN_M
-from highway_srl.sim.box_geometry import boxes_overlap
+from highway_srl.sim.box_geometry import boxes_separation
 from highway_srl.sim.dynamics import integrate_speed, steer
 from highway_srl.sim.ego import HOLD_LANE
 from highway_srl.sim.snapshot import Snapshot
@@ -60,42 +59,19 @@ def next_pose(snap: Snapshot, lane: torch.Tensor, speed: torch.Tensor, lane_widt
     return snap.ego_x + v_mid * torch.cos(h) * DT_S, snap.ego_y + v_mid * torch.sin(h) * DT_S, h
 
 
-def _corners(x, y, h):
-    """(..., 4) corner x and y of L x B boxes."""
-    qx = torch.tensor([0.5, 0.5, -0.5, -0.5], dtype=x.dtype, device=x.device) * VEHICLE_LENGTH_M
-    qy = torch.tensor([0.5, -0.5, 0.5, -0.5], dtype=x.dtype, device=x.device) * VEHICLE_WIDTH_M
-    c, s = torch.cos(h)[..., None], torch.sin(h)[..., None]
-    return x[..., None] + c * qx - s * qy, y[..., None] + s * qx + c * qy
-
-
-def _points_to_box(px, py, x, y, h):
-    """(..., 4) distance of points (..., 4) to the L x B box (x, y, h) (...,), 0 inside it."""
-    dx, dy = px - x[..., None], py - y[..., None]
-    c, s = torch.cos(h)[..., None], torch.sin(h)[..., None]
-    along = ((dx * c + dy * s).abs() - 0.5 * VEHICLE_LENGTH_M).clamp(min=0.0)
-    across = ((dy * c - dx * s).abs() - 0.5 * VEHICLE_WIDTH_M).clamp(min=0.0)
-    return torch.hypot(along, across)
-
-
-def box_distance(xa, ya, ha, xb, yb, hb) -> torch.Tensor:
-    """The distance between two L x B boxes (broadcast), 0 where they overlap: for disjoint convex polygons
-    it is reached between a corner of one and the other."""
-    ax, ay = _corners(xa, ya, ha)
-    bx, by = _corners(xb, yb, hb)
-    d = torch.minimum(_points_to_box(ax, ay, xb, yb, hb).amin(-1), _points_to_box(bx, by, xa, ya, ha).amin(-1))
-    return torch.where(boxes_overlap(xa, ya, ha, xb, yb, hb), torch.zeros_like(d), d)
-
-
-def _nearest(pose, cars: NearCars) -> torch.Tensor:
-    x, y, h = pose
-    d = box_distance(x[:, None], y[:, None], h[:, None], cars.x, cars.y, cars.heading)
-    return torch.where(cars.valid, d, torch.full_like(d, float("inf"))).amin(1)
+def _nearest(poses, cars: NearCars) -> torch.Tensor:
+    """(B, P) separation (sim.box_geometry.boxes_separation: a lower bound of the distance, exact side to
+    corner) of the ego at each of P poses ((B, P) x, y, heading) from the nearest valid car."""
+    x, y, h = (t[:, :, None] for t in poses)  # (B, P, 1) against the cars' (B, 1, K)
+    d = boxes_separation(x, y, h, cars.x[:, None], cars.y[:, None], cars.heading[:, None])
+    return torch.where(cars.valid[:, None], d, torch.full_like(d, float("inf"))).amin(-1)
 
 
 def swing_guard(snap: Snapshot, cars: NearCars, lane: torch.Tensor, speed: torch.Tensor,
                 lane_width_m: float) -> torch.Tensor:
     """(B,) long: lane, or HOLD_LANE where the commanded move would bring the ego's body within LAT_MARGIN_M
-    of a car and holding its lateral position keeps it farther from every car."""
-    moved = _nearest(next_pose(snap, lane, speed, lane_width_m), cars)
-    held = _nearest(next_pose(snap, torch.full_like(lane, HOLD_LANE), speed, lane_width_m), cars)
-    return torch.where((moved < LAT_MARGIN_M) & (held > moved), torch.full_like(lane, HOLD_LANE), lane)
+    of a car (by the boxes' separation) and holding its lateral position keeps it farther from every car."""
+    moved = next_pose(snap, lane, speed, lane_width_m)
+    held = next_pose(snap, torch.full_like(lane, HOLD_LANE), speed, lane_width_m)
+    d = _nearest([torch.stack(pair, 1) for pair in zip(moved, held)], cars)
+    return torch.where((d[:, 0] < LAT_MARGIN_M) & (d[:, 1] > d[:, 0]), torch.full_like(lane, HOLD_LANE), lane)

@@ -46,6 +46,21 @@ def boxes_overlap(
     return overlap
 
 
+def boxes_separation(xa, ya, ha, xb, yb, hb, length_m: float = VEHICLE_LENGTH_M,
+                     width_m: float = VEHICLE_WIDTH_M) -> torch.Tensor:
+    """The largest gap between the projections of rectangles A and B on the four axes of boxes_overlap (m;
+    all args broadcast): > 0 where they are apart, by at most their distance (a projection shortens no
+    distance), exactly it where a side of one box faces the other's nearest point; <= 0 where they overlap."""
+    hl, hw = 0.5 * length_m, 0.5 * width_m
+    ca, sa, cb, sb = torch.cos(ha), torch.sin(ha), torch.cos(hb), torch.sin(hb)
+    dx, dy = xb - xa, yb - ya
+    c, s = (ca * cb + sa * sb).abs(), (sa * cb - ca * sb).abs()
+    r_long, r_short = hl + hl * c + hw * s, hw + hl * s + hw * c
+    gap = torch.maximum((dx * ca + dy * sa).abs() - r_long, (dy * ca - dx * sa).abs() - r_short)
+    gap = torch.maximum(gap, (dx * cb + dy * sb).abs() - r_long)
+    return torch.maximum(gap, (dy * cb - dx * sb).abs() - r_short)
+
+
 def lateral_half_extent(heading: torch.Tensor, length_m: float = VEHICLE_LENGTH_M, width_m: float = VEHICLE_WIDTH_M):
     """Half of a rotated box's extent along y (m)."""
     return 0.5 * width_m * torch.cos(heading).abs() + 0.5 * length_m * torch.sin(heading).abs()

@@ -1,4 +1,4 @@
-"""hold_lateral's body-swing guard (rules.body_swing): box distances by hand, the predicted pose against the
+"""hold_lateral's body-swing guard (rules.body_swing): box separations by hand, the predicted pose against the
 simulator's own step, and the guard holding an ego whose corner would swing into a car beside it."""
 
 from __future__ import annotations
@@ -8,11 +8,14 @@ from types import SimpleNamespace
 
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from highway_srl.constants import LANE_WIDTH_M, VEHICLE_LENGTH_M, VEHICLE_WIDTH_M
 from highway_srl.rules.avoidable import LAT_MARGIN_M
-from highway_srl.rules.body_swing import NearCars, box_distance, next_pose, swing_guard
+from highway_srl.rules.body_swing import NearCars, next_pose, swing_guard
 from highway_srl.sim import HOLD_LANE, World
+from highway_srl.sim.box_geometry import boxes_overlap, boxes_separation
 
 L, B = VEHICLE_LENGTH_M, VEHICLE_WIDTH_M
 
@@ -24,16 +27,36 @@ def _t(*v):
 @pytest.mark.parametrize("b, expected", [
     ((0.0, B + 0.3, 0.0), 0.3),  # side by side, flanks 0.3 m apart
     ((L + 0.5, 0.0, 0.0), 0.5),  # nose to tail
-    ((L + 0.3, B + 0.4, 0.0), 0.5),  # corner to corner: hypot(0.3, 0.4)
+    ((L + 0.3, B + 0.4, 0.0), 0.4),  # corner to corner: the larger axis gap, 0.4 (the distance is 0.5)
     ((0.0, 1.0 + 0.5 * L + 0.2, math.pi / 2), 0.2),  # crosswise: its short side 0.2 m from the flank
-    ((1.0, 1.5, 0.3), 0.0),  # overlapping
+    ((0.0, 0.5 * B + 0.5 * L * math.sin(0.5) + 0.5 * B * math.cos(0.5) + 0.2, 0.5), 0.2),
 ])
-def test_box_distance_golden(b, expected):
-    """L x B = 5 x 2 m boxes; the ego's at the origin, heading 0."""
-    d = box_distance(_t(0.0), _t(0.0), _t(0.0), _t(b[0]), _t(b[1]), _t(b[2]))
+def test_boxes_separation_golden(b, expected):
+    """L x B = 5 x 2 m boxes; the ego's at the origin, heading 0. The last: a car turned 0.5 rad above the
+    ego's flank, its lowest corner L/2 sin h + B/2 cos h below its centre and 0.2 m above the flank (at x =
+    -L/2 cos h + B/2 sin h, over the ego's side: the distance is 0.2 too)."""
+    d = boxes_separation(_t(0.0), _t(0.0), _t(0.0), _t(b[0]), _t(b[1]), _t(b[2]))
     assert float(d) == pytest.approx(expected, abs=1e-5)
-    # symmetric
-    assert float(box_distance(_t(b[0]), _t(b[1]), _t(b[2]), _t(0.0), _t(0.0), _t(0.0))) == pytest.approx(expected, abs=1e-5)
+    assert float(boxes_separation(_t(b[0]), _t(b[1]), _t(b[2]), _t(0.0), _t(0.0), _t(0.0))) == pytest.approx(
+        expected, abs=1e-5)  # symmetric
+
+
+@settings(max_examples=200, deadline=None)
+@given(x=st.floats(-8, 8), y=st.floats(-5, 5), h=st.floats(-1.6, 1.6))
+def test_boxes_separation_is_positive_exactly_where_the_boxes_are_apart_and_never_above_their_distance(x, y, h):
+    """> 0 iff boxes_overlap says apart; and no larger than the distance between any corner of one box and
+    any point of the other's boundary (sampled)."""
+    zero = _t(0.0)
+    d = float(boxes_separation(zero, zero, zero, _t(x), _t(y), _t(h)))
+    assert (d > 1e-6) <= (not bool(boxes_overlap(zero, zero, zero, _t(x), _t(y), _t(h))))
+    assert (d < -1e-6) <= bool(boxes_overlap(zero, zero, zero, _t(x), _t(y), _t(h)))
+    if d > 0:
+        u = torch.linspace(-0.5, 0.5, 41)
+        edge = torch.cat([torch.stack([u * L, torch.full_like(u, s * 0.5 * B)], 1) for s in (-1, 1)]
+                         + [torch.stack([torch.full_like(u, s * 0.5 * L), u * B], 1) for s in (-1, 1)])
+        c, s_ = math.cos(h), math.sin(h)
+        other = torch.stack([x + edge[:, 0] * c - edge[:, 1] * s_, y + edge[:, 0] * s_ + edge[:, 1] * c], 1)
+        assert d <= float(torch.cdist(edge, other).min()) + 1e-4
 
 
 def _ego_pose(s) -> SimpleNamespace:

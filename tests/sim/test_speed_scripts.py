@@ -82,5 +82,10 @@ def test_rule_layer_cost_times_an_addition_off_and_on():
     assert done.returncode == 0, done.stderr
     out = json.loads(done.stdout)
     assert out["option"] == "lanes_by_body" and out["ms_per_observe_off"] > 0 and out["ms_per_observe_on"] > 0
+    done = _run("scripts/rule_layer_cost.py", "--option", "hold_lateral", "--scenario", "two-lane", "--envs", "4",
+                "--rounds", "2", "--repeats", "2", "--act")  # an addition that works in act
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    assert out["ms_per_observe_act_off"] > 0 and out["ms_per_observe_act_on"] > 0
     bad = _run("scripts/rule_layer_cost.py", "--option", "standstill_gap_m")  # not a boolean addition
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()[-1]) < 400
