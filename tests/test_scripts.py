@@ -100,7 +100,8 @@ def test_episode_ends_accounts_for_every_episode_and_refuses_a_folder_that_is_no
     assert done.returncode == 2 and done.stderr.strip().splitlines()[-1].startswith("episode_ends.py: error:")
 
 
-def test_case_corners_replays_an_open_case_to_its_collision():
-    case = "tests/rules/cases/safe-far-lane-cut-in-while-settling-multi-lane-A-adversarial.json"
+def test_case_corners_replays_a_case_to_its_collision():
+    # one the safe profile still ends in an (unavoidable) collision: tests/rules/test_counterexamples.py
+    case = "tests/rules/cases/safe-going-back-at-walking-pace-into-a-cut-in-multi-lane-A-adversarial.json"
     lines = _run("scripts/case_corners.py", case, "--last", "3").stdout.strip().splitlines()
     assert len(lines) == 3 and lines[-1].endswith("collision=True") and "corners_y=" in lines[-1]

@@ -96,7 +96,7 @@ BUDGETS: dict[str, Budget] = {
     "quick": Budget(
         "quick", steps=40_000, envs=8, seeds=(0, 1), learning_starts=1_000, batch_size=64, replay_ratio=0.25,
         eval_episodes=20, group1_levels=tuple(TRAFFIC_LEVELS), checkpoint_every=8_000, profiles=("paper", "safe"),
-        expected_cost="about 4 h on a 2-core CPU for its 86 jobs, both profiles (docs/results/quick-2026-11-28; "
+        expected_cost="about 4 h on a 2-core CPU for its 86 jobs, both profiles (measured at 9fb10e1; "
                       "4e4 steps x 2 seeds per run, 20 episodes per seed and level); "
                       "enough for MoE-RM-SRL's return to rise, not for the paper's numbers"),
     "paper": Budget(
