@@ -26,6 +26,7 @@ from highway_srl.study.results import Result, Results, job_episodes, load_result
 STUDY_FILE = "study.json"
 SEED_FREE = ("name", "expected_cost", "seeds", "profiles")  # budget settings a chunk may choose for itself
 DEPLOY_KEYS = ("episodes", "C_r", "avg_speed", "R_r", "R_s", "adversary")
+VERDICTS = "collision_verdicts"  # metrics.json's training collisions by verdict: per_seed and all
 
 
 @dataclass
@@ -144,10 +145,15 @@ def merge_metrics(parts: list[dict]) -> dict:
         vals = [m[key] for m in per_seed.values() if m.get(key) is not None]
         mean[key] = sum(vals) / len(vals) if vals else None
     rates = [p["env_steps_per_s"] for p in parts if p.get("env_steps_per_s")]
-    return {**parts[0], "per_seed": per_seed, "mean": mean, "seeds": [int(s) for s in per_seed],
-            "wall_s": sum(p.get("wall_s") or 0.0 for p in parts),
-            "env_steps_per_s": sum(rates) / len(rates) if rates else None,
-            "commit": _joined(p.get("commit") for p in parts)}
+    out = {**parts[0], "per_seed": per_seed, "mean": mean, "seeds": [int(s) for s in per_seed],
+           "wall_s": sum(p.get("wall_s") or 0.0 for p in parts),
+           "env_steps_per_s": sum(rates) / len(rates) if rates else None,
+           "commit": _joined(p.get("commit") for p in parts)}
+    out.pop(VERDICTS, None)
+    if all(p.get(VERDICTS) for p in parts):  # a chunk trained before the verdicts leaves the job's split unknown
+        out[VERDICTS] = {"per_seed": _by_seed({k: v for p in parts for k, v in p[VERDICTS]["per_seed"].items()}),
+                         "all": {k: sum(p[VERDICTS]["all"][k] for p in parts) for k in parts[0][VERDICTS]["all"]}}
+    return out
 
 
 def _joined(values) -> str | None:
@@ -201,7 +207,10 @@ def _pooled(key: str, parts: list[dict]) -> dict:
 def merge_census(parts: list[dict]) -> dict:
     """The collision censuses of several chunks as one: counts added, speeds at contact weighted by count."""
     out: dict = {"collisions": sum(c["collisions"] for c in parts)}
-    for key in ("by_kind", "by_detail", "by_decision"):
+    for key in ("ego_avoidable", "unavoidable"):  # the verdicts: only where every chunk judged its collisions
+        if all(key in c for c in parts):
+            out[key] = sum(c[key] for c in parts)
+    for key in ("by_kind", "by_detail", "by_decision", "by_reason"):
         if all(key in c for c in parts):
             total: dict[str, int] = {}
             for c in parts:

@@ -116,3 +116,36 @@ def test_a_chunk_continued_from_another_commit_names_both(tmp_path):
     state["invocations"].append({**state["invocations"][-1], "commit": "bbbbbbb"})
     (folder / "study.json").write_text(json.dumps(state))
     assert chunks.load_study(root).state["chunks"][0]["commit"] == f"{first}, bbbbbbb"
+
+
+def _verdicts(seeds: dict[str, tuple[int, int]]) -> dict:
+    """metrics.json's collision_verdicts from {seed: (ego-avoidable, unavoidable)}."""
+    per_seed = {s: {"collisions": a + u, "ego_avoidable": a, "unavoidable": u, "not_judged": 0}
+                for s, (a, u) in seeds.items()}
+    keys = ("collisions", "ego_avoidable", "unavoidable", "not_judged")
+    return {"per_seed": per_seed, "all": {k: sum(v[k] for v in per_seed.values()) for k in keys}}
+
+
+def _metrics(seeds: dict[str, tuple[int, int]], verdicts: bool = True) -> dict:
+    m = {"per_seed": {s: {"episodes": 10, "collisions": a + u, "T_c": 0.9} for s, (a, u) in seeds.items()},
+         "mean": {"T_c": 0.9}}
+    return {**m, "collision_verdicts": _verdicts(seeds)} if verdicts else m
+
+
+def test_the_training_verdicts_of_chunks_merge_seed_by_seed_and_vanish_if_a_chunk_lacks_them():
+    merged = chunks.merge_metrics([_metrics({"0": (1, 2), "1": (0, 3)}), _metrics({"2": (4, 0)})])
+    assert merged["collision_verdicts"]["all"] == {"collisions": 10, "ego_avoidable": 5, "unavoidable": 5,
+                                                   "not_judged": 0}
+    assert list(merged["collision_verdicts"]["per_seed"]) == ["0", "1", "2"]
+    older = chunks.merge_metrics([_metrics({"0": (1, 2)}), _metrics({"2": (4, 0)}, verdicts=False)])
+    assert "collision_verdicts" not in older  # chunk 0's split alone would pass for the job's
+
+
+def test_the_deployment_verdicts_of_chunks_add_up_and_vanish_if_a_chunk_lacks_them():
+    judged = [{"collisions": 3, "ego_avoidable": 1, "unavoidable": 2, "by_reason": {"a": 1, "b": 2}},
+              {"collisions": 2, "ego_avoidable": 0, "unavoidable": 2, "by_reason": {"b": 2}}]
+    merged = chunks.merge_census(judged)
+    assert (merged["collisions"], merged["ego_avoidable"], merged["unavoidable"]) == (5, 1, 4)
+    assert merged["by_reason"] == {"b": 4, "a": 1}
+    older = chunks.merge_census([judged[0], {"collisions": 2}])
+    assert older["collisions"] == 5 and "ego_avoidable" not in older and "by_reason" not in older

@@ -8,6 +8,7 @@ from pathlib import Path
 from highway_srl.study.jobs import OURS, Job
 from highway_srl.study.results import Result, Results
 from highway_srl.study.collision_tables import collision_verdicts
+from highway_srl.study.verdicts import promise_claim
 
 RATE = {"value": 0.9, "low": 0.8, "high": 0.95}
 ESTIMATE = {"value": 7.0, "low": 6.5, "high": 7.5}
@@ -71,3 +72,43 @@ def test_a_job_not_deployed_at_a_level_leaves_that_cell_empty_and_unfinished_job
     assert "| Two-lane | MoE-RM-SRL | 0: 0 / 0 / 0 | 1: 1 / 0 / 0 | 3: 0 / 3 / 0 |" in md
     assert "| Two-lane | RL | 2: 2 / 0 / 0 | 1: 1 / 0 / 0 |  |" in md
     assert "SR-RL" not in md
+
+
+def _safe(scene: str, training: dict | None, levels: dict) -> Result:
+    res = _result(OURS, scene, training, levels)
+    return Result(Job(OURS, scene, steps=100, seeds=(0, 1), profile="safe"), "done", None, Path("x"),
+                  metrics=res.metrics, evaluation=res.evaluation)
+
+
+def _promise(*results: Result):
+    return promise_claim(Results(Path("x"), {"budget": "paper"}, list(results), profile="safe"))
+
+
+NONE_AVOIDABLE = {"collisions": 4, "ego_avoidable": 0, "unavoidable": 4, "not_judged": 0}
+
+
+def test_the_promise_holds_in_a_scene_with_only_unavoidable_collisions_and_states_the_rule_of_three_bound():
+    c = _promise(_safe("two-lane", NONE_AVOIDABLE, {"C": _level(100, {"collisions": 1, "ego_avoidable": 0,
+                                                                      "unavoidable": 1})}))
+    check = c.checks[0]
+    assert check.ok is True and check.what == "Two-lane"
+    # 50 training + 100 deployment episodes: none ego-avoidable, the bound 3/150
+    assert check.detail.startswith("0 ego-avoidable, 0 not judged, 5 unavoidable in 150 episodes")
+    assert "at most 2.0e-02 an episode" in check.detail and "safe profile" in check.detail
+    assert [ch.ok for ch in c.checks[1:]] == [None] * (len(c.checks) - 1)  # the other scenes: no finished seeds
+    assert c.verdict == f"confirmed where checked (1 of {len(c.checks)})"
+
+
+def test_an_ego_avoidable_or_unjudged_collision_breaks_the_promise_and_old_records_cannot_judge_it():
+    unjudged = {**NONE_AVOIDABLE, "collisions": 5, "not_judged": 1}
+    avoidable = {"collisions": 2, "ego_avoidable": 1, "unavoidable": 1}
+    c = _promise(_safe("two-lane", unjudged, {"C": _level(100, None)}),
+                 _safe("merge", NONE_AVOIDABLE, {"C": _level(100, avoidable)}),
+                 _safe("exit", None, {"C": _level(100, avoidable)}))
+    by = {ch.what: ch for ch in c.checks}
+    assert by["Two-lane"].ok is None  # the deployment census was written before the verdicts
+    assert by["Merging"].ok is False and by["Merging"].detail.startswith("1 ego-avoidable, 0 not judged")
+    assert by["Exiting"].ok is None and "before the collision verdicts" in by["Exiting"].detail
+    c = _promise(_safe("two-lane", unjudged, {"C": _level(100, {"collisions": 0, "ego_avoidable": 0,
+                                                               "unavoidable": 0})}))
+    assert c.checks[0].ok is False and c.verdict == "not confirmed"
