@@ -75,9 +75,10 @@ def _add_reproduce(sub) -> None:
     p.add_argument("--scenes", default=None, help="only these scenes, comma-separated: two-lane, merge, exit, "
                    "adv-two-lane, adv-merge, adv-exit, multi-lane, adv-multi-lane (default: all)")
     p.add_argument("--seeds", default=None, help="seeds instead of the budget's, comma-separated, e.g. 0 or 0,1,2")
-    p.add_argument("--profiles", default=None, help="control profiles, comma-separated, paper first: paper (the "
-                   "reproduction) and safe (our safety additions, reported as 'beyond the paper'); default: the "
-                   "budget's (smoke: paper; quick and paper: paper,safe)")
+    p.add_argument("--profiles", default=None, help="control profiles, comma-separated, paper (if named) first: "
+                   "paper (the reproduction) and safe (our safety additions, reported as 'beyond the paper'); "
+                   "safe alone runs a chunk of its jobs only; default: the budget's (smoke: paper; quick and "
+                   "paper: paper,safe)")
     p.add_argument("--report-only", action="store_true", help="run nothing: write the tables, figures and "
                    "report of the study in --out from the jobs finished so far (say, while it runs in another "
                    "process); the other options are not needed")

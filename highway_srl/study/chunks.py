@@ -231,8 +231,8 @@ def _merged_state(parts: list[Results], jobs: dict) -> dict:
     states = [p.state for p in parts]
     config = dict(states[0].get("budget_config", {}))
     config["seeds"] = sorted({s for st in states for s in st.get("budget_config", {}).get("seeds", [])})
-    config["profiles"] = list(dict.fromkeys(p for st in states for p in st.get("budget_config", {}).get(
-        "profiles", ["paper"])))
+    profiles = dict.fromkeys(p for st in states for p in st.get("budget_config", {}).get("profiles", ["paper"]))
+    config["profiles"] = sorted(profiles, key=lambda p: p != "paper")  # the reproduction first, as in each chunk
     invocations = [{**i, "chunk": p.root.name} for p in parts for i in p.state.get("invocations", [])]
     methods = [st.get("methods") for st in states]
     return {"kind": "highway-srl study", "budget": states[0].get("budget"), "budget_config": config,

@@ -149,3 +149,23 @@ def test_the_deployment_verdicts_of_chunks_add_up_and_vanish_if_a_chunk_lacks_th
     assert merged["by_reason"] == {"b": 4, "a": 1}
     older = chunks.merge_census([judged[0], {"collisions": 2}])
     assert older["collisions"] == 5 and "ego_avoidable" not in older and "by_reason" not in older
+
+
+def test_a_chunk_of_the_safe_profile_alone_runs_only_its_jobs_and_merges_beside_the_paper_chunks(tmp_path, capsys):
+    root = tmp_path / "paper"
+    _chunk(root, (0,))
+    safe = root / "safe-seeds-0"  # sorts before the paper chunks: the merged study still puts paper first
+    reproduce("smoke", safe, jobs=1, work=fakes.fake_work, methods=(OURS,), scenes=("two-lane",), seeds=(0,),
+              profiles=("safe",), **QUIET)
+    assert [p.name for p in (safe / "runs").iterdir()] == ["safe"]  # no paper-profile job in the chunk
+    study = chunks.load_study(root)
+    assert study.state["budget_config"]["profiles"] == ["paper", "safe"]
+    assert study.get(OURS, "two-lane").job.seeds == (0,)
+    assert [r.get(OURS, "two-lane").job.id for r in study.beyond()] == ["safe:two-lane/moe-rm-srl"]
+    assert main(["reproduce", "--out", str(root), "--report-only"]) == 0
+    report = (root / "report.md").read_text()
+    assert "No collision the ego could have avoided, in training or deployment (safe profile;" in report
+    for bad in ("safe,paper", "paper,paper", "fast"):
+        assert main(["reproduce", "--budget", "smoke", "--profiles", bad, "--out", str(tmp_path / bad)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--profiles takes distinct names of paper, safe, paper (if named) first" in err[0]

@@ -1,33 +1,69 @@
 #!/bin/bash
-# The campaign's queue as this folder's chunks were made: resumable `reproduce` calls, one thread per job,
-# from a worktree pinned at a commit whose paper-profile pins are the first chunks' (1d3a74e): the calls below
-# run from 92e3795 (LM-RL's a' from the target networks; every other method's pin is 1d3a74e's there).
-# Usage, from a checkout of this repository:
+# The campaign's plan: resumable `reproduce` calls, one thread per job, two jobs at once, in the order of
+# README.md here. A call whose jobs have finished (eval.json in OUT) is passed over; any other starts only if
+# its estimate (minutes on two free cores) ends before DEADLINE, so that a work period ends with no job half
+# trained (a wiped machine would lose it); a later, shorter call may still fit.
+# Usage, from a checkout of this repository (the worktrees' commits: README.md here):
 #   git worktree add --detach ../campaign 92e3795 && (cd ../campaign && make setup)
-#   CAMPAIGN=../campaign OUT=../campaign-out setsid nohup bash docs/results/paper/queue.sh > queue.log 2>&1 &
+#   git worktree add --detach ../campaign-safe b696c91 && (cd ../campaign-safe && make setup)
+#   mkdir -p ../campaign-out && cp -r docs/results/paper/*seeds-* ../campaign-out/   # the finished jobs
+#   DEADLINE=$(date -d '+150 min' +%s) OUT=../campaign-out setsid nohup bash docs/results/paper/queue.sh \
+#     > ../campaign-out/queue.log 2>&1 < /dev/null &
 #   echo 19 > /proc/PID/autogroup   # keep it behind interactive work (README.md here)
 # then copy the records back with docs/results/paper/sync.sh and rebuild the report (README.md here).
-# Each call finishes within a work period of about three hours on two free cores; the order is README.md's.
 set -u
-CAMPAIGN=${CAMPAIGN:-../campaign}
-PROFILES=${PROFILES:-paper}  # safe: the chunks beyond the paper, from a worktree with today's safe profile
+PAPER=$(realpath -m "${CAMPAIGN:-../campaign}")      # paper profile: 92e3795 (pins equal to 1d3a74e's)
+SAFE=$(realpath -m "${CAMPAIGN_SAFE:-../campaign-safe}")  # safe profile: b696c91 (docs/results/falsify-safe)
 OUT=$(realpath -m "${OUT:-../campaign-out}")
-cd "$CAMPAIGN" || exit 1
-run() {  # chunk seeds methods scenes
-  OMP_NUM_THREADS=1 nice -n 19 .venv/bin/python -m highway_srl.cli reproduce --budget paper --profiles "$PROFILES" \
-    --seeds "$2" --jobs 2 --out "$OUT/$1" --methods "$3" --scenes "$4"
+DEADLINE=${DEADLINE:-$(date -d '+150 min' +%s)}
+finished() {  # folder methods scenes: every named job has eval.json there
+  local m s
+  for m in ${2//,/ }; do for s in ${3//,/ }; do [ -f "$1/$s/$m/eval.json" ] || return 1; done; done
+}
+call() {  # profile chunk seeds methods scenes minutes
+  local tree=$PAPER runs="$OUT/$2/runs"
+  [ "$1" = safe ] && tree=$SAFE runs="$OUT/$2/runs/safe"
+  if finished "$runs" "$4" "$5"; then return; fi
+  if (( $(date +%s) + $6 * 60 > DEADLINE )); then echo "$(date -Is) no time left for: $*"; return; fi
+  (cd "$tree" && OMP_NUM_THREADS=1 nice -n 19 .venv/bin/python -m highway_srl.cli reproduce --budget paper \
+    --profiles "$1" --seeds "$3" --jobs 2 --out "$OUT/$2" --methods "$4" --scenes "$5")
   echo "$(date -Is) done: $*"
 }
-# done: every MoE-RM-SRL job (and the ablations) at seeds 0-2; seeds-0-1 every two-lane baseline and rl merge
-#   (tables/progress.md says what is finished)
-run seeds-0-1 0,1 sr-rl,mp-rl merge
-run seeds-0-1 0,1 et-rl,lm-rl merge
-run seeds-0-1 0,1 rl,sr-rl exit
-run seeds-0-1 0,1 mp-rl,et-rl exit
-run seeds-0-1 0,1 lm-rl exit,adv-two-lane
-run seeds-0-1 0,1 rl,sr-rl adv-two-lane
-run seeds-0-1 0,1 mp-rl,et-rl adv-two-lane
-# next: the adversarial merge and exit baselines, then seed 2 of every baseline (seeds-2), then seeds 3 and on;
-# under the safe profile (PROFILES=safe CAMPAIGN=../campaign-safe, a worktree at b696c91, whose safe profile the
-# falsifier's sweeps found no ego-avoidable collision in: docs/results/falsify-safe):
-#   safe-seeds-0-1 moe-rm-srl in every scene first, then sr-rl,mp-rl
+# paper profile, seeds 0 and 1: MoE-RM-SRL (and the ablations) everywhere, the two-lane baselines and merge RL
+# are finished (tables/progress.md); then, scene by scene:
+call paper seeds-0-1 0,1 sr-rl,mp-rl merge 70
+call paper seeds-0-1 0,1 et-rl,lm-rl merge 110
+call paper seeds-0-1 0,1 rl,sr-rl exit 70
+call paper seeds-0-1 0,1 mp-rl,et-rl exit 70
+# safe profile (beyond the paper), MoE-RM-SRL one seed a chunk, each scene (the nominal ones first)
+call safe safe-seeds-0 0 moe-rm-srl two-lane,multi-lane 35
+call safe safe-seeds-0 0 moe-rm-srl merge,exit 35
+call safe safe-seeds-1 1 moe-rm-srl two-lane,multi-lane 35
+call safe safe-seeds-1 1 moe-rm-srl merge,exit 35
+call safe safe-seeds-2 2 moe-rm-srl two-lane,multi-lane 35
+call safe safe-seeds-2 2 moe-rm-srl merge,exit 35
+call paper seeds-0-1 0,1 lm-rl exit 110
+call paper seeds-0-1 0,1 rl,sr-rl adv-two-lane 70
+call paper seeds-0-1 0,1 mp-rl,et-rl adv-two-lane 70
+call paper seeds-0-1 0,1 lm-rl adv-two-lane 110
+call paper seeds-0-1 0,1 rl,sr-rl adv-merge 70
+call paper seeds-0-1 0,1 mp-rl,et-rl adv-merge 70
+call paper seeds-0-1 0,1 lm-rl adv-merge 110
+call paper seeds-0-1 0,1 rl,sr-rl adv-exit 70
+call paper seeds-0-1 0,1 mp-rl,et-rl adv-exit 70
+call paper seeds-0-1 0,1 lm-rl adv-exit 110
+call safe safe-seeds-0 0 moe-rm-srl adv-exit,adv-multi-lane 35
+call safe safe-seeds-1 1 moe-rm-srl adv-exit,adv-multi-lane 35
+call safe safe-seeds-2 2 moe-rm-srl adv-exit,adv-multi-lane 35
+call safe safe-seeds-0 0 moe-rm-srl adv-two-lane,adv-merge 70  # adv-two-lane brings the three ablations
+call safe safe-seeds-1 1 moe-rm-srl adv-two-lane,adv-merge 70
+call safe safe-seeds-2 2 moe-rm-srl adv-two-lane,adv-merge 70
+# the third seed of every baseline, one seed a call (the short calls fill a work period's end)
+call paper seeds-2 2 rule-based two-lane 5
+for scene in two-lane merge exit adv-two-lane adv-merge adv-exit; do
+  call paper seeds-2 2 rl,sr-rl $scene 35
+  call paper seeds-2 2 mp-rl,et-rl $scene 35
+  call paper seeds-2 2 lm-rl $scene 55
+done
+call paper seeds-2 2 rm-rl two-lane 35
+# then SR-RL and MP-RL under the safe profile, and seeds 3 and on (seeds-3, ...), in the same order
