@@ -20,8 +20,9 @@ actions and the longitudinal and lateral offsets and speeds of the vehicle that 
      lane: it is judged by the cases below, as RSS's lateral rule judges the car that moved sideways into
      the other;
   4. front: unavoidable only if the car it hit came into its path within the trace (seen out of it first,
-     or out of it at the last decision) at a bumper gap the ego could not stop in, braking at its limit
-     at once while that car braked at its own (room_to_stop); avoidable otherwise, also when the car was
+     or out of it at the last decision; moving toward the ego by RSS's margin μ or more within the trace,
+     not a car that kept its line while the ego moved into it: kept_its_line) at a bumper gap the ego could
+     not stop in, braking at its limit at once while that car braked at its own (room_to_stop); avoidable otherwise, also when the car was
      in its path all along, unless it was behind the ego all along and drove up on it (came_from_behind);
   5. side: with the other car changing lanes, as case 4 (a car that turned in ahead with room to brake
      is avoidable, one that turned in alongside or below the stopping distance is not); else avoidable;
@@ -68,6 +69,7 @@ CUT_IN = "cut in ahead below the ego's stopping distance"
 SIDE_SWIPE = "an SV changing lanes met the ego's side"
 SIDE_ROOM = "an SV turning in ahead left room to brake"
 SIDE_KEEPING = "side contact with neither car changing lanes"
+EGO_MOVED_IN = "moved sideways into a car that kept its line"
 NEEDLESS_BRAKE = "braked without need in front of a close follower"
 REAR = "hit from behind by a car that did not brake for the ego"
 AVOIDABLE_REASONS = (FORBIDDEN_ACTION, ROAD, EGO_CHANGED, RAN_INTO, SIDE_ROOM, SIDE_KEEPING, NEEDLESS_BRAKE)
@@ -161,17 +163,31 @@ def entry_verdict(rows: list[dict], avoidable_reason: str, unavoidable_reason: s
     since before the trace, or not recorded): the follower's responsibility, avoidable."""
     paths = [in_path(r) for r in rows]
     if paths and paths[-1] is False:  # it came into the path in the colliding step itself
-        return False, unavoidable_reason
+        return (True, EGO_MOVED_IN) if kept_its_line(rows) else (False, unavoidable_reason)
     i = len(rows) - 1
     while i > 0 and paths[i] and paths[i - 1]:
         i -= 1
     if i <= 0 or not paths[i] or paths[i - 1] is not False:
         return (False, unavoidable_reason) if came_from_behind(rows) else (True, avoidable_reason)
+    if kept_its_line(rows):
+        return True, EGO_MOVED_IN
     r = rows[i]
     gap = r["dx"] - VEHICLE_LENGTH_M
     if gap <= 0.0:  # alongside or behind the ego's front when it came in: no braking of the ego answers it
         return False, unavoidable_reason
     return (True, avoidable_reason) if room_to_stop(gap, r["v"], r["v_sv"]) else (False, unavoidable_reason)
+
+
+def kept_its_line(rows: list[dict]) -> bool:
+    """The hit car did not come toward the ego: at no decision of the trace was its own lateral position (the
+    ego's y + dy) farther from the ego, on its side, than at the last decision by RSS's lateral margin μ or
+    more, so the ego's sideways motion brought it into the path (a standing car the ego's nose swung into,
+    say). False where the trace does not keep both lateral positions."""
+    if any(r.get(k) is None for r in rows for k in ("y", "dy")):
+        return False
+    side = 1.0 if rows[-1]["dy"] > 0 else -1.0
+    at_last = rows[-1]["y"] + rows[-1]["dy"]
+    return all((r["y"] + r["dy"] - at_last) * side < LAT_MARGIN_M for r in rows)
 
 
 def came_from_behind(rows: list[dict]) -> bool:

@@ -8,7 +8,10 @@ leader, unless the leader came into its path at a distance below d_min, which ma
 So:
   front: the ego is responsible unless the car it hit entered its path at a gap below d_min(v_ego, v_sv);
   rear: the car behind is responsible (RSS lets the leader brake as hard as it can);
-  the ego changing lanes: the ego is responsible (it moved into the other car's path);
+  the ego changing lanes and moving sideways toward the car it hit by RSS's lateral margin μ or more
+  in the last second before the contact: the ego is responsible (it moved into the other car's path); an ego whose change was
+  commanded but whose centre held or moved away is judged by the other lines (RSS's lateral rule looks at
+  lateral motion, not at intentions);
   side contact with the other car changing lanes, and road: not judged (RSS's lateral rule needs lateral
   speeds and accelerations the decision trace does not keep; a road edge is no RSS object).
 rules.avoidable decides with ρ = 0 at the entry (the decision is the response) and puts doubtful cases on
@@ -21,7 +24,7 @@ from __future__ import annotations
 import warnings
 
 from highway_srl.constants import DT_S, EGO_ACCEL_MAX_MPS2, EGO_BRAKE_MAX_MPS2, SV_BRAKE_MAX_MPS2, VEHICLE_LENGTH_M
-from highway_srl.rules.avoidable import in_path
+from highway_srl.rules.avoidable import LAT_MARGIN_M, in_path
 
 NOT_JUDGED = "not judged by RSS's longitudinal rule"
 
@@ -87,7 +90,7 @@ def rss_verdict(kind: str, ego_changing: bool, sv_changing: bool, rows: list[dic
     rules.avoidable.ego_avoidable. `distance(v_rear, v_front)` is ad-rss's d_min unless a test passes another."""
     if kind == "road":
         return None
-    if ego_changing:
+    if ego_changing and moved_sideways_toward(rows):
         return True
     if kind == "side":
         return None
@@ -101,6 +104,21 @@ def rss_verdict(kind: str, ego_changing: bool, sv_changing: bool, rows: list[dic
         return True  # in its path all along: the ego had to keep d_min
     r = rows[entries[-1]]
     return r["dx"] - VEHICLE_LENGTH_M >= distance(r["v"], r["v_sv"])
+
+
+LATERAL_WINDOW = 8  # decisions (1 s) before the contact in which the ego's lateral motion counts
+
+
+def moved_sideways_toward(rows: list[dict]) -> bool:
+    """In the last LATERAL_WINDOW decisions (1 s) before the contact the ego's centre came LAT_MARGIN_M (μ) or
+    more nearer the hit car's side: it was moving sideways toward that car when they met, which RSS's lateral
+    rule puts on it (a change finished earlier, or commanded while the ego held its line, is not). True where
+    the trace does not keep the lateral positions (the ego changing lanes is then responsible)."""
+    recent = rows[-LATERAL_WINDOW:]
+    if not recent or any(r.get("y") is None for r in (recent[0], recent[-1])) or recent[-1].get("dy") is None:
+        return True
+    side = 1.0 if recent[-1]["dy"] > 0 else -1.0
+    return (recent[-1]["y"] - recent[0]["y"]) * side >= LAT_MARGIN_M
 
 
 def compare(records: list[dict], distance=ad_rss_safe_distance) -> dict:

@@ -10,6 +10,7 @@ import torch
 from highway_srl.rules.avoidable import (
     CUT_IN,
     EGO_CHANGED,
+    EGO_MOVED_IN,
     FORBIDDEN_ACTION,
     NEEDLESS_BRAKE,
     RAN_INTO,
@@ -19,6 +20,7 @@ from highway_srl.rules.avoidable import (
     SIDE_ROOM,
     SIDE_SWIPE,
     STOOD,
+    in_path,
     braked_sideways,
     ego_avoidable,
     lateral_danger_from,
@@ -196,6 +198,34 @@ def test_the_blame_time_is_the_start_of_the_last_dangerous_run():
     assert lateral_danger_from([far, far]) == 1  # never dangerous: the last decision only
     assert lateral_danger_from([{**far, "h": None}, far]) == 1
     assert lateral_danger_from([near, {**far, "h_sv": None}]) == 0  # a missing heading is danger (doubt)
+
+
+def test_a_car_that_kept_its_line_did_not_come_in_the_ego_moved_into_it():
+    """The RSS oracle's two-lane F case (paper profile, uniform ego): the ego, changing lanes at 1-2.5 m/s with
+    its nose up to 0.48 rad, slows while its centre drifts 0.45 m toward a car standing in the next lane
+    (speed 0, heading 0) and its front meets that car's rear in the colliding step. Its lateral speed fell fast
+    enough for RSS's lateral response, so case 3 passes it; the car, outside the path margin at first, is
+    inside it from the seventh decision with its centre 4.6 m ahead (no bumper gap), and the front case read
+    that as a car coming in alongside. That car never moved; the ego brought itself into its path, which is
+    the ego's to avoid (RSS: the one that moved sideways into the other)."""
+    ys = [0.03, 0.04, 0.07, 0.12, 0.19, 0.28, 0.35, 0.41, 0.46, 0.48]
+    vs = [0.87, 1.31, 1.31, 1.74, 2.15, 2.54, 1.77, 1.04, 1.02, 0.34]
+    hs = [0.05, 0.09, 0.13, 0.18, 0.25, 0.34, 0.39, 0.43, 0.46, 0.48]
+    drift = [{**row(5.91 - 0.19 * k, dy=3.58 - y, v=v, v_sv=0.0, action="Slower"), "y": y, "h": h, "lane": 0,
+              "h_sv": 0.0} for k, (y, v, h) in enumerate(zip(ys, vs, hs))]
+    assert [in_path(r) for r in drift] == [False] * 6 + [True] * 4
+    assert ego_avoidable("front", True, False, drift) == (True, EGO_MOVED_IN)
+    assert ego_avoidable("front", False, False, drift) == (True, EGO_MOVED_IN)
+    # the same geometry with the car turning in by 0.1 m (RSS's lateral margin μ) or more before the entry,
+    # from wherever it was: it came in, at no gap
+    came_in = [{**r, "dy": r["dy"] - 0.025 * k} for k, r in enumerate(drift)]
+    assert [in_path(r) for r in came_in] == [False] * 5 + [True] * 5
+    assert ego_avoidable("front", False, True, came_in) == (False, CUT_IN)
+    # a car that kept its line until the ego's drift brought it into the path, then turned in: it came in
+    turned = [*drift[:-2], *({**r, "dy": r["dy"] - 0.15} for r in drift[-2:])]
+    assert ego_avoidable("front", True, True, turned) == (False, CUT_IN)
+    # without the lateral positions the front case stands as before
+    assert ego_avoidable("front", False, False, [{**r, "y": None} for r in drift]) == (False, CUT_IN)
 
 
 def test_braking_sideways_is_the_rss_lateral_response():

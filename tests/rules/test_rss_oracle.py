@@ -41,6 +41,23 @@ def test_rear_road_side_and_lane_changes():
     assert rss_verdict("front", True, False, [row(6.0)], ours) is True  # the ego moved into the other's path
 
 
+def test_an_ego_changing_lanes_is_responsible_only_if_it_moved_sideways_toward_the_car():
+    """The oracle's multi-lane C cases (paper profile, adversarial): the ego stands at its lane's centre
+    (y 3.49) with a lane change commanded while a car from behind turns into its side; RSS's lateral rule
+    looks at lateral motion, so the side contact is left unjudged. An ego whose centre moved 0.45 m toward
+    the car (the two-lane F drift into a standing car) is responsible."""
+    standing = [{**row(-7.4 + 0.6 * k, 3.5 - 0.07 * k, v=0.0), "y": 3.49 - 0.001 * k} for k in range(10)]
+    assert rss_verdict("side", True, True, standing, ours) is None
+    drifting = [{**row(5.9 - 0.2 * k, 3.55 - 0.05 * k, v=1.0, v_sv=0.0), "y": 0.03 + 0.05 * k} for k in range(10)]
+    assert rss_verdict("side", True, False, drifting, ours) is True
+    assert rss_verdict("front", True, False, drifting, ours) is True
+    # a change finished before the last second (from lane 0 up to 3.49) is not moving toward the car now
+    assert rss_verdict("side", True, True, [{**standing[0], "y": 0.0}, *standing], ours) is None
+    # 0.11 m toward is moving toward (μ = 0.1); without the lateral positions the change is the ego's
+    assert rss_verdict("side", True, True, [{**standing[0], "y": 3.49}, {**standing[-1], "y": 3.6}], ours) is True
+    assert rss_verdict("side", True, True, [{**r, "y": None} for r in standing], ours) is True
+
+
 def test_compare_counts_both_directions():
     cut_in = {"kind": "front", "ego_changing": False, "sv_changing": True, "decisions": [row(6.0, ASIDE), row(6.0)]}
     records = [{**cut_in, "ego_avoidable": False}, {**cut_in, "ego_avoidable": True},
