@@ -5,7 +5,7 @@
 # trained (a wiped machine would lose it); a later, shorter call may still fit.
 # Usage, from a checkout of this repository (the worktrees' commits: README.md here):
 #   git worktree add --detach ../campaign 92e3795 && (cd ../campaign && make setup)
-#   git worktree add --detach ../campaign-safe 8d7845e && (cd ../campaign-safe && make setup)
+#   git worktree add --detach ../campaign-safe 7344cc8 && (cd ../campaign-safe && make setup)
 #   mkdir -p ../campaign-out && cp -r docs/results/paper/*seeds-* ../campaign-out/   # the finished jobs
 #   DEADLINE=$(date -d '+150 min' +%s) OUT=../campaign-out setsid nohup bash docs/results/paper/queue.sh \
 #     > ../campaign-out/queue.log 2>&1 < /dev/null &
@@ -13,7 +13,7 @@
 # then copy the records back with docs/results/paper/sync.sh and rebuild the report (README.md here).
 set -u
 PAPER=$(realpath -m "${CAMPAIGN:-../campaign}")      # paper profile: 92e3795 (pins equal to 1d3a74e's)
-SAFE=$(realpath -m "${CAMPAIGN_SAFE:-../campaign-safe}")  # safe profile: 8d7845e (b696c91's rules: docs/results/falsify-safe)
+SAFE=$(realpath -m "${CAMPAIGN_SAFE:-../campaign-safe}")  # safe profile: 7344cc8 (b696c91's rules, kept_its_line's verdicts; README.md here)
 OUT=$(realpath -m "${OUT:-../campaign-out}")
 DEADLINE=${DEADLINE:-$(date -d '+150 min' +%s)}
 finished() {  # folder methods scenes: every named job has eval.json there
