@@ -12,8 +12,16 @@ from highway_srl.commands.arguments import positive, seed_list
 def _cmd_reproduce(args) -> int:
     from highway_srl.study.runner import report_only, reproduce
 
+    if args.page and not args.report_only:
+        raise ValueError("--page goes with --report-only: the summary is written from the finished jobs' records")
     if args.report_only:
-        print(f"report: {report_only(args.out, args.budget)}")
+        report = report_only(args.out, args.budget)
+        print(f"report: {report}")
+        if args.page:
+            from highway_srl.study.report import write_page
+
+            write_page(args.page, (report.parent / "summary.md").read_text())
+            print(f"summary written into: {args.page}")
         return 0
     if args.budget is None:
         raise ValueError("choose a budget: --budget smoke, quick or paper (see highway-srl reproduce --help)")
@@ -82,6 +90,9 @@ def _add_reproduce(sub) -> None:
     p.add_argument("--report-only", action="store_true", help="run nothing: write the tables, figures and "
                    "report of the study in --out from the jobs finished so far (say, while it runs in another "
                    "process); the other options are not needed")
+    p.add_argument("--page", default=None, metavar="FILE.md", help="with --report-only: also put the study's "
+                   "summary.md (setting, MoE-RM-SRL's printed cells side by side, every verdict) into FILE.md "
+                   "between its two marker lines (docs/results.md has them), the rest of the file untouched")
     p.set_defaults(func=_cmd_reproduce)
 
 

@@ -19,10 +19,14 @@ from highway_srl.study import seed_tables as ST
 from highway_srl.study import tables as T
 from highway_srl.study.results import Results, job_fraction
 from highway_srl.study.table import Table, write_text
-from highway_srl.study.side_by_side import side_by_side
+from highway_srl.study.side_by_side import headline, side_by_side
 from highway_srl.experiments.runs import provenance
 from highway_srl.study.jobs import BUDGETS, Job
 from highway_srl.study.verdicts import Claim, claims, promise_claim
+
+# The results page (docs/results.md) carries summary.md between these lines: `reproduce --report-only --page`
+PAGE_BEGIN = "<!-- begin: the study's summary.md, written by `highway-srl reproduce --report-only --page` -->"
+PAGE_END = "<!-- end: the study's summary.md -->"
 
 # --------------------------------------------------------------------------------------------- the report
 
@@ -111,13 +115,29 @@ def table_blocks(t: Table, folder: str) -> list[tuple]:
     return [("h2", t.title), ("table", t), ("p", f"Files: `{folder}/{t.name}.csv`, `{folder}/{t.name}.md`.")]
 
 
-def claim_blocks(c: Claim) -> list[tuple]:
-    """A claim's statement, verdict and criterion, then one line per check."""
-    return [("p", f"**{c.statement}** Verdict: **{c.verdict}**. Criterion: {c.criterion}"),
+def claim_blocks(c: Claim, criterion: bool = True) -> list[tuple]:
+    """A claim's statement, verdict and (unless criterion is False) criterion, then one line per check."""
+    return [("p", f"**{c.statement}** Verdict: **{c.verdict}**." + (f" Criterion: {c.criterion}" if criterion else "")),
             ("ul", [f"{ch.what}: {_mark(ch.ok)} {ch.detail}" for ch in c.checks])]
 
 
-def build_blocks(root: Path, results: Results, tables: dict[str, Table], figures: list[Path]) -> list[tuple]:
+def summary_blocks(results: Results, tables: dict[str, Table], judged: list[Claim],
+                   promises: list[Claim]) -> list[tuple]:
+    """summary.md: the report's setting lines, MoE-RM-SRL's printed cells side by side, and every verdict with
+    its checks (criteria: the report's), for the results page to carry word for word."""
+    setting = [line for line in _setting(results, tables.get("progress"))
+               if line.startswith(("- **Budget:**", "- **Chunks:**", "- **Progress:**"))]
+    blocks: list[tuple] = [("ul", setting)]
+    if results.beyond():
+        t = headline(results)
+        blocks += [("p", f"**{t.title}** (every method: `tables/side_by_side.md`)"), ("table", t)]
+    for c in (*judged, *promises):
+        blocks += claim_blocks(c, criterion=False)
+    return blocks
+
+
+def build_blocks(root: Path, results: Results, tables: dict[str, Table], figures: list[Path],
+                 judged: list[Claim], promises: list[Claim]) -> list[tuple]:
     blocks: list[tuple] = [("h1", "MoE-RM-SRL study: our runs beside the paper")]
     blocks.append(("ul", _setting(results, tables.get("progress"))))
     if results.budget != "paper":
@@ -125,14 +145,14 @@ def build_blocks(root: Path, results: Results, tables: dict[str, Table], figures
                             "x 100 episodes: the verdicts below describe these runs only and are no evidence for or "
                             "against the paper."))
     blocks.append(("h2", "The paper's claims, judged on our numbers"))
-    for c in claims(results):
+    for c in judged:
         blocks += claim_blocks(c)
     blocks.append(("h2", "Beyond the paper: the promise, collision by collision"))
     blocks.append(("p", "The paper's promise of driving without collisions, judged as our safe profile states it "
                         "(docs/paper-notes.md, 'Ego-avoidable collisions'): the paper profile is the printed "
                         "equations' reference, each other profile ours."))
-    for r in (results, *results.beyond()):
-        blocks += claim_blocks(promise_claim(r))
+    for c in promises:
+        blocks += claim_blocks(c)
     blocks.append(("h2", "Figures"))
     for path in figures:
         if path.suffix == ".png":
@@ -256,8 +276,23 @@ def write_report(root: str | Path) -> Path:
         t.write(root / "tables")
     figures, figure_tables = F.all_figures(results, root / "figures")
     tables.update(figure_tables)
-    blocks = build_blocks(root, results, tables, figures)
+    judged, promises = claims(results), [promise_claim(r) for r in (results, *results.beyond())]
+    blocks = build_blocks(root, results, tables, figures, judged, promises)
     md = root / "report.md"
     write_text(md, render_markdown(blocks))
     write_text(root / "report.html", render_html(blocks, root))
+    write_text(root / "summary.md", render_markdown(summary_blocks(results, tables, judged, promises)))
     return md
+
+
+def write_page(page: str | Path, summary: str) -> None:
+    """Put `summary` between PAGE_BEGIN and PAGE_END of the Markdown file `page`, leaving the rest as it is."""
+    page = Path(page)
+    if not page.is_file():
+        raise ValueError(f"--page {str(page)!r} is not a file")
+    lines = page.read_text().split("\n")
+    if lines.count(PAGE_BEGIN) != 1 or lines.count(PAGE_END) != 1 or lines.index(PAGE_BEGIN) > lines.index(PAGE_END):
+        raise ValueError(f"--page {str(page)!r} needs one line '{PAGE_BEGIN}' and, after it, one line '{PAGE_END}': "
+                         "the summary goes between them")
+    start, end = lines.index(PAGE_BEGIN), lines.index(PAGE_END)
+    write_text(page, "\n".join(lines[:start + 1] + ["", summary.rstrip("\n"), ""] + lines[end:]))

@@ -92,3 +92,12 @@ def side_by_side(results: Results) -> Table:
                         "[95% interval]. T_r (RM return): the paper's RM reward of the same training episodes, "
                         "one scale for every method (the paper prints only its methods' own T_r). "
                         "'–': not in the paper or not in this study."])
+
+
+def headline(results: Results) -> Table:
+    """MoE-RM-SRL's rows of side_by_side (Table 5 and the multi-lane table): the results page's table."""
+    full = side_by_side(results)
+    rows = [r for r in full.rows if r["method"] == METHOD_LABELS[OURS]]
+    shown = [c for c in full.display.columns if c.key != "method"]
+    return Table("headline", "MoE-RM-SRL in every printed cell: the paper, ours under the paper's profile, ours "
+                 "beyond it", full.columns, rows, display=Table("", "", shown, rows), notes=full.notes)

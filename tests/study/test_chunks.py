@@ -69,6 +69,31 @@ def test_report_only_merges_the_chunks_seeds_and_rebuilds_the_same_bytes(tmp_pat
     assert (first / "study.json").read_bytes() == before  # the chunks are only read
 
 
+def test_the_summary_goes_between_the_pages_marker_lines_and_nowhere_else(tmp_path, capsys):
+    from highway_srl.study.report import PAGE_BEGIN, PAGE_END
+
+    root = tmp_path / "paper"
+    _chunk(root, (0, 1))
+    page = tmp_path / "results.md"
+    page.write_text(f"# Results\n\nmine, kept\n\n{PAGE_BEGIN}\nold summary\n{PAGE_END}\n\nalso kept\n")
+    assert main(["reproduce", "--out", str(root), "--report-only", "--page", str(page)]) == 0
+    summary = (root / "summary.md").read_text()
+    assert summary.startswith("- **Budget:** `smoke`") and "Verdict: **" in summary
+    text = page.read_text()
+    assert text == f"# Results\n\nmine, kept\n\n{PAGE_BEGIN}\n\n{summary.rstrip()}\n\n{PAGE_END}\n\nalso kept\n"
+    assert main(["reproduce", "--out", str(root), "--report-only", "--page", str(page)]) == 0
+    assert page.read_text() == text  # written again: the same bytes
+    capsys.readouterr()
+    plain = tmp_path / "plain.md"
+    plain.write_text("no markers here\n")
+    err = _error(capsys, root, "--page", str(plain))
+    assert len(err) == 1 and "needs one line '<!-- begin:" in err[0] and plain.read_text() == "no markers here\n"
+    err = _error(capsys, root, "--page", str(tmp_path / "missing.md"))
+    assert len(err) == 1 and "is not a file" in err[0]
+    assert main(["reproduce", "--out", str(root), "--page", str(page)]) == 2
+    assert "--page goes with --report-only" in capsys.readouterr().err
+
+
 def test_a_job_not_finished_in_one_chunk_counts_the_seeds_of_the_others_and_is_listed(tmp_path):
     # the unfinished chunk may even repeat a finished seed (say, a chunk started again elsewhere): it holds
     # no result of it, so nothing is counted twice

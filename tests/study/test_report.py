@@ -163,23 +163,16 @@ def test_the_committed_campaign_report_rebuilds_from_its_committed_records(tmp_p
         assert path.read_bytes() == (committed / name).read_bytes(), f"{name} differs from the committed one"
 
 
-def test_the_results_page_status_quotes_the_committed_report_word_for_word():
-    """docs/results.md's Status block is the committed report's own lines: each of its list lines is a line of
-    docs/results/paper/report.md, and it carries the Progress and Chunks lines and every checked scene of the
-    safe profile's promise, so that no count on the results page is typed by hand or left behind."""
+def test_the_results_page_carries_the_committed_summary_word_for_word():
+    """docs/results.md holds the campaign's summary.md between its marker lines, as `reproduce --report-only
+    --page` writes it, so that no count or verdict on the results page is typed by hand or left behind."""
     from pathlib import Path
 
+    from highway_srl.study.report import PAGE_BEGIN, PAGE_END
+
     docs = Path(__file__).resolve().parents[2] / "docs"
-    report = (docs / "results" / "paper" / "report.md").read_text().split("\n")
+    summary = (docs / "results" / "paper" / "summary.md").read_text()
     page = (docs / "results.md").read_text().split("\n")
-    start = next(i for i, line in enumerate(page) if line.startswith("**Status**"))
-    block = page[start:page.index("### How the claims are judged")]
-    quoted = [line for line in block if line.startswith("- ")]
-    assert quoted and all(line in report for line in quoted), "a Status line of docs/results.md is not the report's"
-    heading = next(i for i, line in enumerate(report)
-                   if line.startswith("**No collision the ego could have avoided") and "safe profile" in line)
-    promise = [line for line in report[heading + 2:heading + 12] if line.startswith("- ")]
-    wanted = [line for line in report if line.startswith(("- **Progress:**", "- **Chunks:**"))]
-    wanted += [line for line in promise if ": not checked" not in line]
-    missing = [line[:60] for line in wanted if line not in block]
-    assert not missing, f"docs/results.md's Status lacks the report's lines {missing}"
+    block = "\n".join(page[page.index(PAGE_BEGIN) + 1:page.index(PAGE_END)])
+    assert block == f"\n{summary.rstrip()}\n", "docs/results.md's summary is not the committed summary.md: " \
+        "run reproduce --budget paper --report-only --out docs/results/paper --page docs/results.md"

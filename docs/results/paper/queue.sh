@@ -32,11 +32,11 @@ call() {  # profile chunk seeds methods scenes minutes
 # safe profile (beyond the paper), MoE-RM-SRL one seed a chunk in the nominal scenes first: three seeds there
 # are the safe promise's last open target (docs/results.md); the adversarial scenes follow the paper baselines
 call safe safe-seeds-0 0 moe-rm-srl two-lane,multi-lane 35
-call safe safe-seeds-0 0 moe-rm-srl merge,exit 100
+call safe safe-seeds-0 0 moe-rm-srl merge,exit 60
 call safe safe-seeds-1 1 moe-rm-srl two-lane,multi-lane 35
-call safe safe-seeds-1 1 moe-rm-srl merge,exit 100
+call safe safe-seeds-1 1 moe-rm-srl merge,exit 60
 call safe safe-seeds-2 2 moe-rm-srl two-lane,multi-lane 35
-call safe safe-seeds-2 2 moe-rm-srl merge,exit 100
+call safe safe-seeds-2 2 moe-rm-srl merge,exit 60
 # paper profile: MoE-RM-SRL (and the ablations) in every scene, the two-lane baselines and the merge RL, SR-RL and
 # MP-RL have seeds 0-1 or 0-2 (tables/progress.md). The jobs not started take seeds 0-2 batched in one process
 # (chunk seeds-0-2: about 1/7 less CPU than seeds 0-1 and seed 2 apart, by docs/benchmarks.md's 1- and
