@@ -1,5 +1,7 @@
 #!/bin/bash
-# Copy the campaign's records (no weights, no checkpoints) from OUT into this folder, chunk by chunk.
+# Copy the campaign's records (no weights, no checkpoints) from OUT into this folder, chunk by chunk: the
+# finished jobs only (metrics.json and eval.json written), and a chunk only once one of its jobs has finished,
+# so that a job still training leaves nothing here to clean up.
 # Usage, from the repository's root: OUT=../campaign-out bash docs/results/paper/sync.sh
 set -u
 OUT=$(realpath -m "${OUT:-../campaign-out}")
@@ -8,9 +10,12 @@ cd "$OUT" || exit 1
 for c in */; do
   c=${c%/}
   [ -f "$c/study.json" ] || continue
-  mkdir -p "$HERE/$c"
-  cp "$c/study.json" "$HERE/$c/"
-  find "$c/runs" -type f \( -name config.json -o -name scalars.csv -o -name episodes.jsonl -o -name metrics.json \
-    -o -name eval.json -o -name job.json \) | while read -r f; do
-    mkdir -p "$HERE/$(dirname "$f")"; cp "$f" "$HERE/$f"; done
+  find "$c/runs" -name eval.json -printf '%h\n' 2>/dev/null | sort | while read -r run; do
+    [ -f "$run/metrics.json" ] || continue
+    mkdir -p "$HERE/$run"
+    for f in config.json scalars.csv episodes.jsonl metrics.json eval.json job.json; do
+      [ -f "$run/$f" ] && cp "$run/$f" "$HERE/$run/"
+    done
+    cp "$c/study.json" "$HERE/$c/"
+  done
 done
