@@ -91,6 +91,13 @@ class Case:
     parameters: dict = field(default_factory=dict)
 
 
+# what load_case accepts in each field of a case file (Case's annotations, checked at run time)
+CASE_TYPES = {"scene": str, "level": str, "adversarial": bool, "adversary": str, "profile": str, "seed": int,
+              "env": int, "steps": int, "actions": list, "cause": str, "ego_avoidable": bool, "record": dict,
+              "parameters": dict}
+CASE_TYPE_WORDS = {str: "a string", bool: "true or false", int: "an integer", list: "a list", dict: "an object"}
+
+
 class AllowedActions:
     """What DecisionTrace reads of a method: the action names and the safe mask (the rule layer's own)."""
 
@@ -350,11 +357,18 @@ def load_case(path: str | Path) -> Case:
         case = Case(**data)
     except TypeError as err:
         raise ValueError(f"{path} is not a falsify case ({err})") from None
+    for name, kind in CASE_TYPES.items():
+        value = getattr(case, name)
+        # bool is an int to Python; a seed of true, or an adversarial flag of 1, is a damaged file all the same
+        if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+            raise ValueError(f"{path}: {name} must be {CASE_TYPE_WORDS[kind]}, got {value!r}")
+    if case.seed < 0 or case.env < 0:
+        raise ValueError(f"{path}: seed and env must be non-negative, got {case.seed} and {case.env}")
     try:
         check_parameters(case.parameters)
     except ValueError as err:
         raise ValueError(f"{path}: {err}") from None
-    if not case.actions or any(not 0 <= a < len(ACTIONS) for a in case.actions):
+    if not case.actions or any(type(a) is not int or not 0 <= a < len(ACTIONS) for a in case.actions):
         raise ValueError(f"{path}: actions must be a non-empty list of indices into {', '.join(ACTIONS)}")
     return case
 

@@ -185,3 +185,20 @@ def test_the_cli_replays_a_paper_case_under_safe_with_substitutes(capsys):
     assert main(["falsify", "--replay", str(path), "--profile", "safe", "--substitute", "--json"]) == 1
     result = json.loads(capsys.readouterr().out)
     assert (result["profile"], result["collided"], result["substituted"]) == ("safe", False, 1)
+
+
+
+@pytest.mark.parametrize("field, value, needle", [
+    ("seed", "abc", "seed must be an integer"), ("seed", True, "seed must be an integer"),
+    ("seed", -3, "must be non-negative"), ("env", -5, "must be non-negative"), ("steps", 1.5, "steps must be"),
+    ("adversarial", "yes", "adversarial must be true or false"), ("adversarial", 1, "adversarial must be"),
+    ("actions", "abc", "actions must be a list"), ("actions", [1, "2"], "actions must be a non-empty list of"),
+    ("actions", [1, True], "actions must be a non-empty list of"), ("scene", 5, "scene must be a string"),
+    ("record", [], "record must be an object")])
+def test_a_damaged_case_file_is_refused_naming_the_field(tmp_path, field, value, needle):
+    data = json.loads((Path(__file__).parent / "cases" / "paper-lane-change-cycle-two-lane-C.json").read_text())
+    data[field] = value
+    path = tmp_path / "case.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(ValueError, match=needle):
+        fz.load_case(path)
