@@ -144,7 +144,9 @@ def read_metrics(path: Path) -> dict:
     for name in ("per_seed", "mean"):
         if not isinstance(data.get(name), dict):
             raise ValueError(f"{path}: {name} must be a JSON object, got {_shown(data.get(name))}")
-    for seed, values in data["per_seed"].items():
+    if not data["per_seed"]:
+        raise ValueError(f"{path}: per_seed is empty (a finished run has one entry per trained seed)")
+    for seed, values in seed_keyed(data["per_seed"], f"{path}: per_seed").items():
         check_fields(values, SEED_METRICS, f"{path}: per_seed.{seed}")
     check_fields(data["mean"], MEAN_METRICS, f"{path}: mean", tuple(MEAN_METRICS))
     if "collision_verdicts" in data:  # runs trained before the verdicts have none
@@ -166,11 +168,25 @@ def read_eval(path: Path) -> dict:
     data = check_fields(read_json(path), {"method": "text", "scenario": "text", "episodes_per_level": "count"}, str(path))
     if not isinstance(data.get("levels"), dict) or not data["levels"]:
         raise ValueError(f"{path}: levels must be a non-empty JSON object, got {_shown(data.get('levels'))}")
+    seeds = data.get("trained_seeds")  # optional: evaluations of runs written before it existed
+    if seeds is not None and not (isinstance(seeds, list) and all(KINDS["count"][1](s) for s in seeds)):
+        raise ValueError(f"{path}: trained_seeds must be a list of non-negative integers, got {_shown(seeds)}")
     for level, values in data["levels"].items():
         check_level(values, f"{path}: levels.{level}")
-        for seed, part in (values.get("per_seed") or {}).items():
+        per_seed = values.get("per_seed")
+        if per_seed is not None and not isinstance(per_seed, dict):
+            raise ValueError(f"{path}: levels.{level}.per_seed must be a JSON object or null, got {_shown(per_seed)}")
+        for seed, part in seed_keyed(per_seed or {}, f"{path}: levels.{level}.per_seed").items():
             check_level(part, f"{path}: levels.{level}.per_seed.{seed}")
     return data
+
+
+def seed_keyed(mapping: dict, where: str) -> dict:
+    """mapping, whose keys name seeds ("0", "1", ...); ValueError naming the first key that does not."""
+    for key in mapping:
+        if not key.isdigit():
+            raise ValueError(f"{where}: {_shown(key)} is not a seed (a non-negative integer)")
+    return mapping
 
 
 def check_level(values, where: str) -> None:

@@ -11,9 +11,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from highway_srl.constants import TRAFFIC_LEVELS
-from highway_srl.experiments.records import check_fields, read_episode_log, read_eval, read_metrics
+from highway_srl.experiments.records import KINDS, check_fields, read_episode_log, read_eval, read_metrics
 from highway_srl.experiments.runs import read_json
-from highway_srl.study.jobs import TRAIN_TRAFFIC, Job
+from highway_srl.study.jobs import METHOD_LABELS, SCENES, TRAIN_TRAFFIC, Job
 
 
 @dataclass
@@ -137,19 +137,38 @@ def read_study(path: Path) -> dict:
             raise ValueError(f"{path}: {name} must be a JSON {'object' if kind is dict else 'list'}, "
                              f"got {json.dumps(state.get(name))[:40]}")
     check_fields(state["budget_config"], BUDGET_FIELDS, f"{path}: budget_config", ("replay_ratio",))
-    for name in ("seeds", "group1_levels"):
-        if not isinstance(state["budget_config"].get(name, []), list):
-            raise ValueError(f"{path}: budget_config.{name} must be a JSON list")
+    check_lists(state["budget_config"], {"seeds": "count", "group1_levels": "text"}, f"{path}: budget_config")
     for n, invocation in enumerate(state["invocations"]):
         check_fields(invocation, {}, f"{path}: invocations[{n}]")
     for job_id, entry in state["jobs"].items():
         where = f"{path}: jobs.{job_id}"
         check_fields(entry, {"status": "text", "message": "text?"}, where, ("status", "message"))
+        job = check_fields(entry.get("job"), JOB_FIELDS, f"{where}.job", tuple(JOB_FIELDS)[2:])
+        check_lists(job, JOB_LISTS, f"{where}.job")
+        for name, known in (("method", METHOD_LABELS), ("scene", SCENES)):
+            if job[name] not in known:
+                raise ValueError(f"{where}.job: unknown {name} {job[name]!r}; this version knows {', '.join(known)}")
         try:
-            Job.from_dict(check_fields(entry.get("job"), {}, f"{where}.job"))
+            Job.from_dict(job)
         except TypeError as err:
             raise ValueError(f"{where}.job is not a job of this version ({err})") from None
     return state
+
+
+# a job as study.json records it (Job.to_dict); all but method and scene may be missing in older studies
+JOB_FIELDS = {"method": "text", "scene": "text", "steps": "count", "envs": "count", "learning_starts": "count",
+              "batch_size": "count", "replay_ratio": "number?", "checkpoint_every": "count",
+              "eval_episodes": "count", "profile": "text", "adversary": "text"}
+JOB_LISTS = {"options": "text", "seeds": "count", "eval_levels": "text", "artefacts": "text"}
+
+
+def check_lists(obj: dict, spec: dict[str, str], where: str) -> None:
+    """Each list of spec (name -> kind of its items) that obj holds is a JSON list of items of that kind."""
+    for name, kind in spec.items():
+        items = obj.get(name, [])
+        words, ok = KINDS[kind]
+        if not isinstance(items, list) or not all(ok(item) for item in items):
+            raise ValueError(f"{where}: {name} must be a JSON list, each item {words}, got {json.dumps(items)[:40]}")
 
 
 def load_results(root: str | Path) -> Results:

@@ -227,6 +227,9 @@ DEMO_DAMAGES = {
     "NaN": (_json_edit(lambda d: d.__setitem__("wall_s", float("inf"))), "wall_s"),
     "garbage line": (_garbage, "not valid JSON"),
     "truncated": (_truncated, "not valid JSON"),
+    "no seed": (_json_edit(lambda d: d.__setitem__("per_seed", {})), "per_seed is empty"),
+    "a key not a seed": (_json_edit(lambda d: d.__setitem__("per_seed", {"x": d["per_seed"].popitem()[1]})),
+                         'per_seed: "x" is not a seed'),
 }
 CASES = [(name, kind) for name, kinds in DAMAGES.items() for kind in kinds]
 
@@ -260,6 +263,11 @@ EVAL_DAMAGES = {
     "NaN": (_json_edit(lambda d: d["levels"]["A"]["avg_speed"].__setitem__("low", float("nan"))), "avg_speed: low"),
     "garbage line": (_garbage, "not valid JSON"),
     "truncated": (_truncated, "not valid JSON"),
+    "per_seed not an object": (_json_edit(lambda d: d["levels"]["A"].__setitem__("per_seed", "x")),
+                               "levels.A.per_seed must be a JSON object or null"),
+    "a key not a seed": (_json_edit(lambda d: d["levels"]["A"].__setitem__("per_seed", {"x": dict(d["levels"]["A"])})),
+                         'levels.A.per_seed: "x" is not a seed'),
+    "trained_seeds": (_json_edit(lambda d: d.__setitem__("trained_seeds", ["x"])), "trained_seeds must be a list"),
 }
 
 

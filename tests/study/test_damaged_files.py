@@ -64,6 +64,21 @@ DAMAGE = {  # name: (file under the job folder or the study, how it is damaged, 
                                "study.json: invocations must be a JSON list, got null"),
     "study-steps-text": ("../study.json", lambda p: _edit_json(p, lambda d: d["budget_config"].update(steps="1e3")),
                          "study.json: budget_config: steps must be a non-negative integer"),
+    "study-job-seeds-text": ("../study.json", lambda p: _edit_job(p, lambda j: j.update(seeds="x")),
+                             "study.json: jobs.two-lane/moe-rm-srl.job: seeds must be a JSON list, each item a "
+                             "non-negative integer"),
+    "study-job-method-number": ("../study.json", lambda p: _edit_job(p, lambda j: j.update(method=5)),
+                                "study.json: jobs.two-lane/moe-rm-srl.job: method must be a string, got 5"),
+    "study-job-unknown-scene": ("../study.json", lambda p: _edit_job(p, lambda j: j.update(scene="nope")),
+                                "study.json: jobs.two-lane/moe-rm-srl.job: unknown scene 'nope'"),
+    "study-job-episodes-negative": ("../study.json", lambda p: _edit_job(p, lambda j: j.update(eval_episodes=-5)),
+                                    "study.json: jobs.two-lane/moe-rm-srl.job: eval_episodes must be a non-negative"),
+    "study-seeds-negative": ("../study.json", lambda p: _edit_json(p, lambda d: d["budget_config"].update(seeds=[-1])),
+                             "study.json: budget_config: seeds must be a JSON list, each item a non-negative integer"),
+    "metrics-seed-key": ("metrics.json", lambda p: _edit_json(p, lambda d: d.update(per_seed={"x": {"episodes": 1}})),
+                         'metrics.json: per_seed: "x" is not a seed'),
+    "eval-trained-seeds-text": ("eval.json", lambda p: _edit_json(p, lambda d: d.update(trained_seeds="0")),
+                                "eval.json: trained_seeds must be a list of non-negative integers"),
     # the kinds of damage tests/cli/test_records.py gives each run file, where the cases above leave them out
     "study-nan": ("../study.json", lambda p: _edit_json(p, lambda d: d["budget_config"].update(replay_ratio=NAN)),
                   "study.json: budget_config: replay_ratio must be a finite number or null, got nan"),
@@ -88,6 +103,10 @@ DAMAGE = {  # name: (file under the job folder or the study, how it is damaged, 
                                   "episodes.jsonl ends in a cut-off line although its job finished"),
 }
 NAN = float("nan")
+
+
+def _edit_job(path, change) -> None:  # the two-lane MoE-RM-SRL job's entry
+    _edit_json(path, lambda d: change(d["jobs"]["two-lane/moe-rm-srl"]["job"]))
 
 
 def _garbage(path) -> None:  # a line of garbage after the first
