@@ -60,10 +60,18 @@ def test_single_env_refuses_float_actions():
     ([1, 2, 3], "need 2 seeds, got 3"),
     (1.5, "seed must be None, an integer or 2 integers, got 1.5"),
     ([1, None], "seed must be None, an integer or 2 integers"),
+    (-5, "a seed must be an integer from 0 to 2\\*\\*63 - 1, got -5"),
+    (2**63 - 1, "a seed must be an integer from 0 to 2\\*\\*63 - 1, got 9223372036854775808"),  # env 1's: seed + 1
+    (2**70, "from 0 to 2\\*\\*63 - 1, got 1180591620717411303424"),
 ])
 def test_bad_vector_seeds_are_one_value_error(seed, message):
     with pytest.raises(ValueError, match=message.replace("(", r"\(")):
         HighwayVectorEnv("two-lane", num_envs=2).reset(seed=seed)
+
+
+def test_a_single_env_seed_beyond_int64_is_one_value_error():
+    with pytest.raises(ValueError, match="a seed must be an integer from 0 to"):
+        highway_srl.make("two-lane").reset(seed=2**70)
 
 
 def test_reset_options_are_refused_rather_than_ignored():
