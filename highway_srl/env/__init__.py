@@ -70,9 +70,9 @@ class _Batch:
         self.started = False  # reset() has run: step() may follow, reset() without a seed continues
 
     def reseed(self, seeds: list[int]) -> None:
-        if not all(0 <= seed < 2**63 for seed in seeds):  # the world's seeds are int64 counters (sim/rng.py)
-            bad = next(seed for seed in seeds if not 0 <= seed < 2**63)
-            raise ValueError(f"a seed must be an integer from 0 to 2**63 - 1, got {bad}")
+        for seed in seeds:  # the world's seeds are int64 counters (sim/rng.py)
+            if not 0 <= seed < 2**63:
+                raise ValueError(f"a seed must be an integer from 0 to 2**63 - 1, got {seed}")
         s = self.world.state
         s.seed[:] = torch.as_tensor(seeds, dtype=torch.long, device=s.seed.device)
         s.episode[:] = -1  # reset() starts episode 0 of each new seed

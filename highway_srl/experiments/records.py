@@ -41,6 +41,15 @@ def check_fields(obj, spec: dict[str, str], where: str, optional: tuple[str, ...
     return obj
 
 
+def check_lists(obj: dict, spec: dict[str, str], where: str) -> None:
+    """Each list of spec (name -> kind of its items) that obj holds is a JSON list of items of that kind."""
+    for name, kind in spec.items():
+        items = obj.get(name, [])
+        words, ok = KINDS[kind]
+        if not isinstance(items, list) or not all(ok(item) for item in items):
+            raise ValueError(f"{where}: {name} must be a JSON list, each item {words}, got {_shown(items)}")
+
+
 def _shown(value) -> str:
     text = json.dumps(value) if not isinstance(value, float) or math.isfinite(value) else repr(value)
     return text if len(text) <= 40 else text[:37] + "..."
@@ -168,9 +177,8 @@ def read_eval(path: Path) -> dict:
     data = check_fields(read_json(path), {"method": "text", "scenario": "text", "episodes_per_level": "count"}, str(path))
     if not isinstance(data.get("levels"), dict) or not data["levels"]:
         raise ValueError(f"{path}: levels must be a non-empty JSON object, got {_shown(data.get('levels'))}")
-    seeds = data.get("trained_seeds")  # optional: evaluations of runs written before it existed
-    if seeds is not None and not (isinstance(seeds, list) and all(KINDS["count"][1](s) for s in seeds)):
-        raise ValueError(f"{path}: trained_seeds must be a list of non-negative integers, got {_shown(seeds)}")
+    if data.get("trained_seeds") is not None:  # optional: evaluations of runs written before it existed
+        check_lists(data, {"trained_seeds": "count"}, str(path))
     for level, values in data["levels"].items():
         check_level(values, f"{path}: levels.{level}")
         per_seed = values.get("per_seed")

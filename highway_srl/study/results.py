@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from highway_srl.constants import TRAFFIC_LEVELS
-from highway_srl.experiments.records import KINDS, check_fields, read_episode_log, read_eval, read_metrics
+from highway_srl.experiments.records import check_fields, check_lists, read_episode_log, read_eval, read_metrics
 from highway_srl.experiments.runs import read_json
 from highway_srl.study.jobs import METHOD_LABELS, SCENES, TRAIN_TRAFFIC, Job
 
@@ -160,15 +160,6 @@ JOB_FIELDS = {"method": "text", "scene": "text", "steps": "count", "envs": "coun
               "batch_size": "count", "replay_ratio": "number?", "checkpoint_every": "count",
               "eval_episodes": "count", "profile": "text", "adversary": "text"}
 JOB_LISTS = {"options": "text", "seeds": "count", "eval_levels": "text", "artefacts": "text"}
-
-
-def check_lists(obj: dict, spec: dict[str, str], where: str) -> None:
-    """Each list of spec (name -> kind of its items) that obj holds is a JSON list of items of that kind."""
-    for name, kind in spec.items():
-        items = obj.get(name, [])
-        words, ok = KINDS[kind]
-        if not isinstance(items, list) or not all(ok(item) for item in items):
-            raise ValueError(f"{where}: {name} must be a JSON list, each item {words}, got {json.dumps(items)[:40]}")
 
 
 def load_results(root: str | Path) -> Results:

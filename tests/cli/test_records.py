@@ -267,7 +267,7 @@ EVAL_DAMAGES = {
                                "levels.A.per_seed must be a JSON object or null"),
     "a key not a seed": (_json_edit(lambda d: d["levels"]["A"].__setitem__("per_seed", {"x": dict(d["levels"]["A"])})),
                          'levels.A.per_seed: "x" is not a seed'),
-    "trained_seeds": (_json_edit(lambda d: d.__setitem__("trained_seeds", ["x"])), "trained_seeds must be a list"),
+    "trained_seeds": (_json_edit(lambda d: d.__setitem__("trained_seeds", ["x"])), "trained_seeds must be a JSON list"),
 }
 
 

@@ -78,7 +78,7 @@ DAMAGE = {  # name: (file under the job folder or the study, how it is damaged, 
     "metrics-seed-key": ("metrics.json", lambda p: _edit_json(p, lambda d: d.update(per_seed={"x": {"episodes": 1}})),
                          'metrics.json: per_seed: "x" is not a seed'),
     "eval-trained-seeds-text": ("eval.json", lambda p: _edit_json(p, lambda d: d.update(trained_seeds="0")),
-                                "eval.json: trained_seeds must be a list of non-negative integers"),
+                                "eval.json: trained_seeds must be a JSON list, each item a non-negative integer"),
     # the kinds of damage tests/cli/test_records.py gives each run file, where the cases above leave them out
     "study-nan": ("../study.json", lambda p: _edit_json(p, lambda d: d["budget_config"].update(replay_ratio=NAN)),
                   "study.json: budget_config: replay_ratio must be a finite number or null, got nan"),
