@@ -11,11 +11,17 @@
 #     > ../campaign-out/queue.log 2>&1 < /dev/null &
 #   echo 19 > /proc/PID/autogroup   # keep it behind interactive work (README.md here)
 # then copy the records back with docs/results/paper/sync.sh and rebuild the report (README.md here).
+# With FILL_UNTIL (a time, e.g. "$(date -d '+170 min' +%s)") the plan's pass is followed, if it ends before
+# FILL_UNTIL, by the first unfinished call whatever its estimate: the period's end is killed with it, and it
+# resumes from its last checkpoint in the next period if the machine keeps its files. Before it starts, each
+# chunk's study.json is kept as study.json.stop, which sync.sh copies in its place (no half-run job listed).
 set -u
 PAPER=$(realpath -m "${CAMPAIGN:-../campaign}")      # paper profile: 92e3795 (pins equal to 1d3a74e's)
 SAFE=$(realpath -m "${CAMPAIGN_SAFE:-../campaign-safe}")  # safe profile: 7344cc8 (b696c91's rules, kept_its_line's verdicts; README.md here)
 OUT=$(realpath -m "${OUT:-../campaign-out}")
 DEADLINE=${DEADLINE:-$(date -d '+150 min' +%s)}
+FILL_UNTIL=${FILL_UNTIL:-0} FILL=
+rm -f "$OUT"/*/study.json.stop  # a new period: the last one's fill call resumes and writes its study.json
 finished() {  # folder methods scenes: every named job has eval.json there
   local m s
   for m in ${2//,/ }; do for s in ${3//,/ }; do [ -f "$1/$s/$m/eval.json" ] || return 1; done; done
@@ -24,11 +30,14 @@ call() {  # profile chunk seeds methods scenes minutes
   local tree=$PAPER runs="$OUT/$2/runs"
   [ "$1" = safe ] && tree=$SAFE runs="$OUT/$2/runs/safe"
   if finished "$runs" "$4" "$5"; then return; fi
-  if (( $(date +%s) + $6 * 60 > DEADLINE )); then echo "$(date -Is) no time left for: $*"; return; fi
+  if [ -z "$FILL" ] && (( $(date +%s) + $6 * 60 > DEADLINE )); then echo "$(date -Is) no time left for: $*"; return; fi
+  [ -n "$FILL" ] && echo "$(date -Is) fill: $* (to be resumed if stopped)"
   (cd "$tree" && OMP_NUM_THREADS=1 nice -n 19 .venv/bin/python -m highway_srl.cli reproduce --budget paper \
     --profiles "$1" --seeds "$3" --jobs 2 --out "$OUT/$2" --methods "$4" --scenes "$5")
   echo "$(date -Is) done: $*"
+  if [ -n "$FILL" ]; then rm -f "$OUT"/*/study.json.stop; exit; fi
 }
+plan() {
 # safe profile (beyond the paper), MoE-RM-SRL one seed a chunk in the nominal scenes first: three seeds there
 # are the safe promise's last open target (docs/results.md); the adversarial scenes follow the paper baselines
 call safe safe-seeds-0 0 moe-rm-srl two-lane,multi-lane 35
@@ -67,3 +76,9 @@ call paper seeds-2 2 lm-rl two-lane,merge 55
 call paper seeds-2 2 lm-rl exit,adv-two-lane 55
 call paper seeds-2 2 lm-rl adv-merge,adv-exit 55
 # then SR-RL and MP-RL under the safe profile, and seeds 3 and on (seeds-3, ...), in the same order
+}
+plan
+if (( $(date +%s) < FILL_UNTIL )); then
+  for f in "$OUT"/*/study.json; do cp "$f" "$f.stop"; done
+  FILL=1 plan
+fi

@@ -1,7 +1,8 @@
 #!/bin/bash
 # Copy the campaign's records (no weights, no checkpoints) from OUT into this folder, chunk by chunk: the
 # finished jobs only (metrics.json and eval.json written), and a chunk only once one of its jobs has finished,
-# so that a job still training leaves nothing here to clean up.
+# so that a job still training leaves nothing here to clean up. A chunk's study.json.stop (queue.sh's fill call
+# runs there) is copied as its study.json: the study as it stood before that call.
 # Usage, from the repository's root: OUT=../campaign-out bash docs/results/paper/sync.sh
 set -u
 OUT=$(realpath -m "${OUT:-../campaign-out}")
@@ -16,6 +17,8 @@ for c in */; do
     for f in config.json scalars.csv episodes.jsonl metrics.json eval.json job.json; do
       [ -f "$run/$f" ] && cp "$run/$f" "$HERE/$run/"
     done
-    cp "$c/study.json" "$HERE/$c/"
+    study=$c/study.json
+    [ -f "$study.stop" ] && study=$study.stop
+    cp "$study" "$HERE/$c/study.json"
   done
 done
