@@ -26,16 +26,25 @@ finished() {  # folder methods scenes: every named job has eval.json there
   local m s
   for m in ${2//,/ }; do for s in ${3//,/ }; do [ -f "$1/$s/$m/eval.json" ] || return 1; done; done
 }
-call() {  # profile chunk seeds methods scenes minutes
+call() {  # profile chunk seeds methods scenes minutes; returns 1 if it passed the call over
   local tree=$PAPER runs="$OUT/$2/runs"
   [ "$1" = safe ] && tree=$SAFE runs="$OUT/$2/runs/safe"
-  if finished "$runs" "$4" "$5"; then return; fi
-  if [ -z "$FILL" ] && (( $(date +%s) + $6 * 60 > DEADLINE )); then echo "$(date -Is) no time left for: $*"; return; fi
+  if finished "$runs" "$4" "$5"; then return 1; fi
+  if [ -z "$FILL" ] && (( $(date +%s) + $6 * 60 > DEADLINE )); then echo "$(date -Is) no time left for: $*"; return 1; fi
   [ -n "$FILL" ] && echo "$(date -Is) fill: $* (to be resumed if stopped)"
   (cd "$tree" && OMP_NUM_THREADS=1 nice -n 19 .venv/bin/python -m highway_srl.cli reproduce --budget paper \
     --profiles "$1" --seeds "$3" --jobs 2 --out "$OUT/$2" --methods "$4" --scenes "$5")
   echo "$(date -Is) done: $*"
-  if [ -n "$FILL" ]; then rm -f "$OUT"/*/study.json.stop; exit; fi
+  if [ -n "$FILL" ] && [ -z "${PAIRED:-}" ]; then rm -f "$OUT"/*/study.json.stop; exit; fi
+}
+pair() {  # two one-job calls side by side, each its 6 arguments: their chunks differ, which one reproduce
+  # call cannot span, and one job alone would leave a core idle; a fill pair ends the script when both end
+  local a b ran=
+  PAIRED=1 call "${@:1:6}" & a=$!
+  PAIRED=1 call "${@:7:6}" & b=$!
+  wait $a && ran=1
+  wait $b && ran=1
+  if [ -n "$FILL" ] && [ -n "$ran" ]; then rm -f "$OUT"/*/study.json.stop; exit; fi
 }
 plan() {
 # safe profile (beyond the paper), MoE-RM-SRL one seed a chunk in the nominal scenes first: three seeds there
@@ -59,9 +68,8 @@ call paper seeds-0-2 0,1,2 mp-rl,et-rl adv-two-lane 110
 call paper seeds-0-2 0,1,2 rl,sr-rl adv-merge 110
 call paper seeds-0-2 0,1,2 mp-rl adv-merge,adv-exit 110
 call paper seeds-0-2 0,1,2 rl,sr-rl adv-exit 110
-call paper seeds-0-2 0,1,2 et-rl adv-exit 90
 call paper seeds-0-1 0,1 lm-rl adv-two-lane,adv-merge 110
-call paper seeds-0-1 0,1 lm-rl adv-exit 110
+pair paper seeds-0-2 0,1,2 et-rl adv-exit 90 paper seeds-0-1 0,1 lm-rl adv-exit 110
 call safe safe-seeds-0 0 moe-rm-srl adv-exit,adv-multi-lane 35
 call safe safe-seeds-1 1 moe-rm-srl adv-exit,adv-multi-lane 35
 call safe safe-seeds-2 2 moe-rm-srl adv-exit,adv-multi-lane 35
@@ -71,7 +79,7 @@ call safe safe-seeds-2 2 moe-rm-srl adv-two-lane,adv-merge 70
 # the third seed of the baselines that have seeds 0-1, one seed a call (the short calls fill a work period's end)
 call paper seeds-2 2 rl,sr-rl two-lane,merge 70
 call paper seeds-2 2 mp-rl,et-rl two-lane 35
-call paper seeds-2 2 mp-rl merge 35
+pair paper seeds-2 2 mp-rl merge 35 paper seeds-3 3 moe-rm-srl two-lane 35  # MoE-RM-SRL's fourth seed beside
 call paper seeds-2 2 lm-rl two-lane,merge 55
 call paper seeds-2 2 lm-rl exit,adv-two-lane 55
 call paper seeds-2 2 lm-rl adv-merge,adv-exit 55
