@@ -14,6 +14,7 @@ import re
 from pathlib import Path
 
 from highway_srl.study import chunks
+from highway_srl.study.causes import INTRO, TITLE, causes
 from highway_srl.study import figures as F
 from highway_srl.study import seed_tables as ST
 from highway_srl.study import tables as T
@@ -122,9 +123,10 @@ def claim_blocks(c: Claim, criterion: bool = True) -> list[tuple]:
 
 
 def summary_blocks(results: Results, tables: dict[str, Table], judged: list[Claim],
-                   promises: list[Claim]) -> list[tuple]:
-    """summary.md: the report's setting lines, MoE-RM-SRL's printed cells side by side, and every verdict with
-    its checks (criteria: the report's), for the results page to carry word for word."""
+                   promises: list[Claim], why: list[str]) -> list[tuple]:
+    """summary.md: the report's setting lines, MoE-RM-SRL's printed cells side by side, every verdict with its
+    checks (criteria: the report's) and the likely causes of the gaps, for the results page to carry word for
+    word."""
     setting = [line for line in _setting(results, tables.get("progress"))
                if line.startswith(("- **Budget:**", "- **Chunks:**", "- **Progress:**"))]
     blocks: list[tuple] = [("ul", setting)]
@@ -133,11 +135,11 @@ def summary_blocks(results: Results, tables: dict[str, Table], judged: list[Clai
         blocks += [("p", f"**{t.title}** (every method: `tables/side_by_side.md`)"), ("table", t)]
     for c in (*judged, *promises):
         blocks += claim_blocks(c, criterion=False)
-    return blocks
+    return blocks + [("p", f"**{TITLE}.** {INTRO}"), ("ul", why)]
 
 
 def build_blocks(root: Path, results: Results, tables: dict[str, Table], figures: list[Path],
-                 judged: list[Claim], promises: list[Claim]) -> list[tuple]:
+                 judged: list[Claim], promises: list[Claim], why: list[str]) -> list[tuple]:
     blocks: list[tuple] = [("h1", "MoE-RM-SRL study: our runs beside the paper")]
     blocks.append(("ul", _setting(results, tables.get("progress"))))
     if results.budget != "paper":
@@ -147,6 +149,7 @@ def build_blocks(root: Path, results: Results, tables: dict[str, Table], figures
     blocks.append(("h2", "The paper's claims, judged on our numbers"))
     for c in judged:
         blocks += claim_blocks(c)
+    blocks += [("h2", TITLE), ("p", INTRO), ("ul", why)]
     blocks.append(("h2", "Beyond the paper: the promise, collision by collision"))
     blocks.append(("p", "The paper's promise of driving without collisions, judged as our safe profile states it "
                         "(docs/paper-notes.md, 'Ego-avoidable collisions'): the paper profile is the printed "
@@ -277,11 +280,12 @@ def write_report(root: str | Path) -> Path:
     figures, figure_tables = F.all_figures(results, root / "figures")
     tables.update(figure_tables)
     judged, promises = claims(results), [promise_claim(r) for r in (results, *results.beyond())]
-    blocks = build_blocks(root, results, tables, figures, judged, promises)
+    why = causes(results)
+    blocks = build_blocks(root, results, tables, figures, judged, promises, why)
     md = root / "report.md"
     write_text(md, render_markdown(blocks))
     write_text(root / "report.html", render_html(blocks, root))
-    write_text(root / "summary.md", render_markdown(summary_blocks(results, tables, judged, promises)))
+    write_text(root / "summary.md", render_markdown(summary_blocks(results, tables, judged, promises, why)))
     return md
 
 
