@@ -2,44 +2,39 @@
 number, ours under the paper's control profile (the reproduction) and ours under each other profile of the
 study ("beyond the paper", e.g. `safe`), each with its spread.
 
-Spread: training metrics (T_c, T_r) are means over seeds ± their standard deviation; deployment metrics
-(C_r, R_r, R_s, speed, collision rate) pool every seed's episodes at level C and carry the 95 % interval of
-highway_srl.rules.metrics. Nothing here is computed anew: the cells read the same Result accessors as the
-single-profile tables (tables.py).
+The seed is the unit: each cell is the mean over the job's seeds with its 95 % t interval over them and their
+number n (seed_tables.summary, the numbers of tables/seed_intervals.md, where the pooled deployment rates
+stand beside with their Wilson intervals over episodes). Training metrics are the training's; deployment
+metrics (C_r, R_r, R_s, speed, collision rate) level C's.
 """
 
 from __future__ import annotations
 
 from highway_srl.study import paper_numbers as paper
+from highway_srl.study import stats as S
+from highway_srl.study.seed_tables import interval_text, summary
 from highway_srl.study.jobs import (ABLATION_SCENE, ABLATIONS, METHOD_LABELS, MULTILANE_SCENES, OURS, SCENES,
                                     TABLE5_METHODS, TABLE5_SCENES, TRAIN_TRAFFIC)
 from highway_srl.study.results import Result, Results
 from highway_srl.study.table import Column, Table, fmt
 from highway_srl.study.tables import METRIC_LABELS, T5_KINDS
 
-TRAINING_METRICS = ("T_c", "T_r", "T_r_rm")
 KINDS = {**T5_KINDS, "avg_speed": "f2", "collision_rate": "pct"}
 LABELS = {**METRIC_LABELS, "avg_speed": "Ave. speed (m/s)", "collision_rate": "Collision rate"}  # multi-lane's
 
 
 def cell(res: Result | None, metric: str) -> tuple[float | None, str]:
-    """(value, Markdown cell 'value ±sd' or 'value [low, high]') of one metric of one job; (None, '–')."""
+    """(mean over seeds, Markdown cell 'mean [low, high], n=N' or 'mean (n=1)') of one metric of one job;
+    (None, '–') where the job has not finished or has no such number."""
     if res is None or not res.done:
         return None, "–"
-    kind = KINDS[metric]
-    if metric in TRAINING_METRICS:
-        t = res.train()
-        value, spread = t.get(metric), t.get(f"{metric}_sd")
-        text = fmt(kind, value) + (f" {fmt('pp' if kind == 'pct' else 'sd', spread)}" if spread is not None else "")
-        return value, text
-    d = res.deploy(TRAIN_TRAFFIC) or {}
-    if metric == "collision_rate":  # the multi-lane table's: 1 - C_r, its interval flipped
-        value, low, high = d.get(metric), _flip(d.get("C_r_high")), _flip(d.get("C_r_low"))
-    else:
-        value, low, high = d.get(metric), d.get(f"{metric}_low"), d.get(f"{metric}_high")
-    if value is None:
+    seeds = summary(res, TRAIN_TRAFFIC)
+    iv = seeds.get("C_r" if metric == "collision_rate" else metric)
+    if iv is None:
         return None, "–"
-    return value, f"{fmt(kind, value)} [{fmt(kind, low)}, {fmt(kind, high)}]"
+    if metric == "collision_rate":  # the multi-lane table's: 1 - C_r, its interval flipped
+        iv = S.Interval(1.0 - iv.mean, _flip(iv.high), _flip(iv.low), iv.n)
+    return iv.mean, interval_text(KINDS[metric], iv) + (f", n={iv.n}" if iv.low is not None else "")
 
 
 def _flip(rate: float | None) -> float | None:
@@ -88,8 +83,9 @@ def side_by_side(results: Results) -> Table:
     shown += [Column(f"ours_{i}_text", f"Ours ({name})") for i, (name, _) in enumerate(sets)]
     return Table("side_by_side", "Every cell of Tables 5, 6 and the multi-lane table: the paper, ours under "
                  "the paper's profile, ours beyond it", cols, rows, display=Table("", "", shown, rows),
-                 notes=["Training metrics: mean over seeds ±sd; deployment metrics (level C): pooled episodes "
-                        "[95% interval]. T_r (RM return): the paper's RM reward of the same training episodes, "
+                 notes=["Each cell: the mean over seeds [its 95% t interval over seeds], n seeds; deployment metrics "
+                        "at level C (`tables/seed_intervals.md` gives the pooled rates with their Wilson intervals "
+                        "beside). T_r (RM return): the paper's RM reward of the same training episodes, "
                         "one scale for every method (the paper prints only its methods' own T_r). "
                         "'–': not in the paper or not in this study."])
 

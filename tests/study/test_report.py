@@ -121,13 +121,14 @@ def test_a_study_of_both_profiles_judges_the_claims_on_the_paper_profile_and_rep
     side = (root / "tables" / "side_by_side.md").read_text()
     assert "| Ours (paper profile) | Ours (safe profile) |" in side
     # Table 5, two-lane T_c of ours: paper 1.000, ours 0.200 under the paper profile, 1.000 under safe
-    assert "| Table 5 | Two-lane | T_c | MoE-RM-SRL | 1.000 | 0.200 | 1.000 |" in side
+    assert "| Table 5 | Two-lane | T_c | MoE-RM-SRL | 1.000 | 0.200 (n=1) | 1.000 (n=1) |" in side
     assert "| Table 6 | Adv. two-lane | C_r | w/o MAP | 37.7% |" in side
     assert "| Multi-lane | Multi-lane (normal) | Collision rate | MoE-RM-SRL | 0.0% |" in side
     assert "side_by_side" in report and "Every cell of Tables 5, 6 and the multi-lane table" in report
 
 
-def test_side_by_side_cells_carry_the_spread_over_seeds_and_the_deployment_interval():
+def test_side_by_side_cells_take_the_seed_as_the_unit():
+    # issue 29: each cell the mean over seeds with its 95 % t interval over them (t_0.975,2 = 4.3027), n stated
     from pathlib import Path
 
     from highway_srl.study.jobs import Job
@@ -135,15 +136,26 @@ def test_side_by_side_cells_carry_the_spread_over_seeds_and_the_deployment_inter
     from highway_srl.study.results import Result
 
     assert cell(None, "T_c") == (None, "–")
-    res = Result(Job(OURS, "two-lane", steps=100, seeds=(0, 1)), "done", None, Path("x"),
-                 metrics={"mean": {"T_c": 0.9}, "per_seed": {"0": {"T_c": 0.8}, "1": {"T_c": 1.0}}},
-                 evaluation={"levels": {"C": {"episodes": 40, "C_r": {"value": 0.95, "low": 0.83, "high": 0.99},
-                                              "R_r": {"value": 200.0, "low": 190.0, "high": 210.0},
-                                              "avg_speed": {"value": 7.0, "low": 6.5, "high": 7.5}}}})
-    assert cell(res, "T_c") == (0.9, "0.900 ±0.14")
-    assert cell(res, "C_r") == (0.95, "95.0% [83.0%, 99.0%]")
+
+    def seed(c_r, r_r):
+        return {"episodes": 100, "C_r": {"value": c_r}, "R_r": {"value": r_r}}
+
+    level = {"episodes": 300, "C_r": {"value": 0.95, "low": 0.92, "high": 0.97},
+             "R_r": {"value": 200.0, "low": 195.0, "high": 205.0},
+             "per_seed": {"0": seed(0.9, 190.0), "1": seed(0.95, 200.0), "2": seed(1.0, 210.0)}}
+    res = Result(Job(OURS, "two-lane", steps=100, seeds=(0, 1, 2)), "done", None, Path("x"),
+                 metrics={"mean": {"T_c": 0.9}, "per_seed": {"0": {"T_c": 0.8}, "1": {"T_c": 0.9}, "2": {"T_c": 1.0}}},
+                 evaluation={"levels": {"C": level}})
+    assert cell(res, "T_c") == (pytest.approx(0.9), "0.900 [0.652, 1.000], n=3")  # 0.9 ± 0.248, cut at 1
+    assert cell(res, "C_r") == (pytest.approx(0.95), "95.0% [82.6%, 100.0%], n=3")  # 0.95 ± 0.124
+    assert cell(res, "R_r") == (pytest.approx(200.0), "200.00 [175.16, 224.84], n=3")  # 200 ± 24.84
     value, text = cell(res, "collision_rate")
-    assert value == pytest.approx(0.05) and text == "5.0% [1.0%, 17.0%]"
+    assert value == pytest.approx(0.05) and text == "5.0% [0.0%, 17.4%], n=3"
+    assert cell(res, "R_s") == (None, "–")  # two-lane has no success rate
+    one = Result(Job(OURS, "two-lane", steps=100, seeds=(4,)), "done", None, Path("x"),
+                 metrics={"mean": {"T_c": 0.7}, "per_seed": {"4": {"T_c": 0.7}}},
+                 evaluation={"trained_seeds": [4], "levels": {"C": {"episodes": 100, "C_r": {"value": 0.5}}}})
+    assert cell(one, "T_c") == (pytest.approx(0.7), "0.700 (n=1)") and cell(one, "C_r")[1] == "50.0% (n=1)"
 
 
 def test_the_committed_campaign_report_rebuilds_from_its_committed_records(tmp_path):
