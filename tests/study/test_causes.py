@@ -21,11 +21,17 @@ from highway_srl.study.results import load_results
 from highway_srl.study.runner import reproduce
 
 
-@pytest.fixture
-def study(tmp_path):
-    root = tmp_path / "study"
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    root = tmp_path_factory.mktemp("causes") / "study"
     reproduce("smoke", root, jobs=1, work=fakes.fake_work, seeds=(0, 1, 2), log=lambda s: None, report=False)
     return root
+
+
+@pytest.fixture
+def study(built, tmp_path):
+    """A fresh copy of the built study for each test, which may rewrite its records."""
+    return shutil.copytree(built, tmp_path / "study")
 
 
 def _bullet(root, start: str) -> str:
