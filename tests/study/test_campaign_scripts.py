@@ -92,15 +92,25 @@ def test_a_pair_runs_its_halves_side_by_side_and_a_fill_keeps_the_snapshots_unti
     env_fill = time.time() + 600
     proc = subprocess.Popen(["bash", str(HERE / "queue.sh")], env={
         **os.environ, "CAMPAIGN": str(campaign / "tree"), "CAMPAIGN_SAFE": str(campaign / "tree"), "OUT": str(out),
-        "DEADLINE": str(int(time.time() - 1)), "FILL_UNTIL": str(int(env_fill)), "FAKE_SLEEP": "2",
+        "DEADLINE": str(int(time.time() - 1)), "FILL_UNTIL": str(int(env_fill)), "FAKE_SLEEP": "3",
         "LOG": str(campaign / "calls")}, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    time.sleep(1)
-    assert json.loads((out / "seeds-0-2/study.json.stop").read_text()) == {"before": "the fill"}
+    assert _snapshot_while_running(proc, out / "seeds-0-2/study.json.stop") == {"before": "the fill"}
     assert proc.wait(timeout=60) == 0
     calls = (campaign / "calls").read_text().splitlines()
     assert [c.split()[0] for c in calls] == ["start", "start", "end", "end"]  # both ran at once
     assert {c.removeprefix("start ") for c in calls[:2]} == halves and halves <= set(planned)
     assert not list(out.glob("*/study.json.stop"))
+
+
+def _snapshot_while_running(proc: subprocess.Popen, path: Path) -> dict | None:
+    """The snapshot's JSON as soon as it is written, read while the fill runs (polled: a loaded machine may
+    take a while to reach it); None if the script ended first."""
+    while proc.poll() is None:
+        try:
+            return json.loads(path.read_text())
+        except (OSError, ValueError):  # not there yet, or caught mid-copy
+            time.sleep(0.02)
+    return None
 
 
 def test_sync_copies_finished_jobs_records_without_weights_and_the_snapshot_in_place_of_study_json(campaign, tmp_path):
