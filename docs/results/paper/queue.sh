@@ -73,13 +73,13 @@ pair paper seeds-0-2 0,1,2 et-rl adv-exit 90 paper seeds-0-1 0,1 lm-rl adv-exit 
 call safe safe-seeds-0 0 moe-rm-srl adv-exit,adv-multi-lane 35
 call safe safe-seeds-1 1 moe-rm-srl adv-exit,adv-multi-lane 35
 call safe safe-seeds-2 2 moe-rm-srl adv-exit,adv-multi-lane 35
-# adv-two-lane brings the three ablations: five one-seed jobs, 90 min (seed 0's took 12:30-14:00 on 2026-12-07)
+# adv-two-lane brings the three ablations: five one-seed jobs, about 90 min (as seed 0's took)
 call safe safe-seeds-0 0 moe-rm-srl adv-two-lane,adv-merge 90
 call safe safe-seeds-1 1 moe-rm-srl adv-two-lane,adv-merge 90
 call safe safe-seeds-2 2 moe-rm-srl adv-two-lane,adv-merge 90
 # the third seed of the baselines that have seeds 0-1, one seed a call, two jobs a call (the short calls fill
 # the time a 110-min call leaves in a work period)
-call paper seeds-2 2 rl two-lane 35
+call paper seeds-2 2 rl two-lane 35  # one job: best run by hand beside a call whose last job leaves a core idle
 call paper seeds-2 2 rl,sr-rl merge 35
 call paper seeds-2 2 mp-rl,et-rl two-lane 35
 pair paper seeds-2 2 mp-rl merge 35 paper seeds-3 3 moe-rm-srl two-lane 35  # MoE-RM-SRL's fourth seed beside
