@@ -70,6 +70,10 @@ call paper seeds-0-2 0,1,2 mp-rl adv-merge,adv-exit 110
 call paper seeds-0-2 0,1,2 rl,sr-rl adv-exit 110
 call paper seeds-0-1 0,1 lm-rl adv-two-lane,adv-merge 110
 pair paper seeds-0-2 0,1,2 et-rl adv-exit 90 paper seeds-0-1 0,1 lm-rl adv-exit 110
+# LM-RL's third seed where it has two: the last paper-profile jobs under three seeds, before the safe
+# adversarial calls (one LM-RL seed on one core: about 60 min, as the seeds-2 runs took)
+call paper seeds-2 2 lm-rl merge,exit 65
+call paper seeds-2 2 lm-rl adv-two-lane,adv-merge 65
 call safe safe-seeds-0 0 moe-rm-srl adv-exit,adv-multi-lane 35
 call safe safe-seeds-1 1 moe-rm-srl adv-exit,adv-multi-lane 35
 call safe safe-seeds-2 2 moe-rm-srl adv-exit,adv-multi-lane 35
@@ -84,8 +88,6 @@ call paper seeds-2 2 rl,sr-rl merge 35
 call paper seeds-2 2 mp-rl,et-rl two-lane 35
 pair paper seeds-2 2 mp-rl merge 35 paper seeds-3 3 moe-rm-srl two-lane 35  # MoE-RM-SRL's fourth seed beside
 call paper seeds-2 2 sr-rl,lm-rl two-lane 55
-call paper seeds-2 2 lm-rl merge,exit 55
-call paper seeds-2 2 lm-rl adv-two-lane,adv-merge 55
 pair paper seeds-2 2 lm-rl adv-exit 55 paper seeds-3 3 moe-rm-srl merge 35
 # then SR-RL and MP-RL under the safe profile, and seeds 3 and on (seeds-3, ...), in the same order
 }
